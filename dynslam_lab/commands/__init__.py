@@ -1,0 +1,1 @@
+"""Sub-commands of the ``dynslam`` CLI, one module each (see ``dynslam_lab/cli.py``)."""

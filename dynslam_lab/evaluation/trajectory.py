@@ -1,0 +1,115 @@
+"""Trajectories in the TUM format: ``timestamp tx ty tz qx qy qz qw`` per line.
+
+A :class:`Trajectory` holds timestamps ``(N,)`` in seconds and poses ``T_w_c (N, 4, 4)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry.se3 import pose_from_tum, pose_to_tum
+
+__all__ = ["Trajectory", "TrajectoryError", "read_tum_trajectory", "write_tum_trajectory"]
+
+
+class TrajectoryError(ValueError):
+    """A trajectory file is malformed, or two trajectories cannot be compared."""
+
+
+@dataclass
+class Trajectory:
+    """Timestamped camera poses ``T_w_c``.
+
+    Attributes
+    ----------
+    timestamps : ``(N,)`` seconds, increasing.
+    poses : ``(N, 4, 4)`` camera-to-world transforms.
+    """
+
+    timestamps: np.ndarray
+    poses: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
+        self.poses = np.asarray(self.poses, dtype=np.float64)
+        if self.poses.ndim != 3 or self.poses.shape[1:] != (4, 4):
+            raise TrajectoryError(f"poses must be (N, 4, 4), got {self.poses.shape}")
+        if len(self.poses) != len(self.timestamps):
+            raise TrajectoryError(f"{len(self.timestamps)} timestamps but {len(self.poses)} poses")
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(N, 3)`` camera centres in the world frame (metres)."""
+        return self.poses[:, :3, 3]
+
+    def subset(self, index: np.ndarray) -> "Trajectory":
+        return Trajectory(self.timestamps[index], self.poses[index])
+
+    def transformed(self, T: np.ndarray, scale: float = 1.0) -> "Trajectory":
+        """Left-multiply every pose by ``T`` after scaling positions by ``scale`` (alignment)."""
+        P = self.poses.copy()
+        P[:, :3, 3] *= scale
+        return Trajectory(self.timestamps.copy(), np.asarray(T, dtype=np.float64) @ P)
+
+    @property
+    def path_length(self) -> float:
+        """Length of the path through the camera centres (metres)."""
+        if len(self) < 2:
+            return 0.0
+        return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+
+
+def read_tum_trajectory(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory file; clear error naming file and line on a malformed row."""
+    path = Path(path)
+    if not path.is_file():
+        raise TrajectoryError(f"{path}: trajectory file not found")
+    stamps: list[float] = []
+    rows: list[list[float]] = []
+    with path.open("r", encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            parts = s.replace(",", " ").split()
+            if len(parts) != 8:
+                raise TrajectoryError(
+                    f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', got {len(parts)}"
+                )
+            try:
+                vals = [float(x) for x in parts]
+            except ValueError:
+                raise TrajectoryError(f"{path}:{lineno}: non-numeric value in {s!r}") from None
+            if not np.all(np.isfinite(vals)):
+                raise TrajectoryError(f"{path}:{lineno}: non-finite value in {s!r}")
+            qn = np.linalg.norm(vals[4:8])
+            if qn < 1e-6:
+                raise TrajectoryError(f"{path}:{lineno}: quaternion has zero norm")
+            stamps.append(vals[0])
+            rows.append(vals[1:])
+    if not stamps:
+        raise TrajectoryError(f"{path}: no poses in file")
+    ts = np.asarray(stamps)
+    order = np.argsort(ts, kind="stable")
+    arr = np.asarray(rows)[order]
+    arr[:, 3:] /= np.linalg.norm(arr[:, 3:], axis=1, keepdims=True)
+    return Trajectory(ts[order], pose_from_tum(arr))
+
+
+def write_tum_trajectory(traj: Trajectory, path: str | Path, header: str | None = None) -> None:
+    """Write a trajectory in TUM format (timestamps with 6 decimals, values with 9 digits)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rows = pose_to_tum(traj.poses) if len(traj) else np.zeros((0, 7))
+    with path.open("w") as fh:
+        if header:
+            for line in header.splitlines():
+                fh.write(f"# {line}\n")
+        for t, r in zip(traj.timestamps, rows):
+            fh.write(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in r) + "\n")

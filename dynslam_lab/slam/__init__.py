@@ -1,0 +1,1 @@
+"""slam stage of dynslam_lab."""
