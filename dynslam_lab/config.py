@@ -99,3 +99,26 @@ def load_config(path: str | Path, base: Any) -> Any:
 def config_to_dict(cfg: Any) -> dict[str, Any]:
     """A plain dict of a config tree (for ``summary.json`` and notebooks)."""
     return dataclasses.asdict(cfg)
+
+
+# --------------------------------------------------------------------------- the root tree
+# Stage parameter classes live beside their algorithms; imported here to gather them.
+from dataclasses import dataclass, field  # noqa: E402
+
+from .features.orb import OrbConfig  # noqa: E402
+from .slam.local_mapping import LocalMappingConfig  # noqa: E402
+from .slam.tracking import TrackingConfig  # noqa: E402
+
+__all__ += ["Config"]
+
+
+@dataclass(frozen=True)
+class Config:
+    """Root of the parameter tree (TOML sections ``[orb]``, ``[tracking]``, ``[local_mapping]``).
+
+    Sections for detection, screening, loop closing and the dense map are added beside these.
+    """
+
+    orb: OrbConfig = field(default_factory=OrbConfig)  # ORB extraction (features/orb.py)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)  # tracking (slam/tracking.py)
+    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)  # local mapping (slam/local_mapping.py)

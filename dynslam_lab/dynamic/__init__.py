@@ -1,1 +1,34 @@
-"""dynamic stage of dynslam_lab."""
+"""Dynamic-feature screening: which keypoints lie on things that move.
+
+One module per method of the four papers, each runnable on one frame, chained by
+:func:`~dynslam_lab.dynamic.screening.build_screener` into one per-keypoint table
+(:class:`~dynslam_lab.dynamic.table.KeypointTable`):
+
+* :mod:`.semantic` -- classes that tend to move (all seeds);
+* :mod:`.depth_ransac` -- YOLO-SLAM's depth-RANSAC inside person boxes (seed 000);
+* :mod:`.epipolar` -- LK matches, RANSAC F, point-to-epipolar-line distance (seeds 002-004);
+* :mod:`.multiview` -- rough PnP pose, 4 px / 0.1 m reprojection test (seed 003);
+* :mod:`.flow` -- Farneback flow with the adaptive 2 * mean threshold (seed 003);
+* :mod:`.motion_probability` -- ASG-SLAM's restoration while delta = m/n < delta_1 (seed 004);
+* :mod:`.geometric_rule` -- seed 002's high/medium/low level rule;
+* :mod:`.inpainting` -- background inpainting from earlier keyframes, for display (seed 003);
+* :mod:`.scoring` -- precision/recall against the synthetic truth; :mod:`.ablation` -- the tables.
+
+Submodules import OpenCV/scipy lazily where they can; import what you need from them.
+"""
+
+from .config import FILTER_PRESETS, STAGES, ScreeningConfig
+from .screening import FILTERS, OracleScreener, Screener, build_screener, parse_filters
+from .table import KeypointTable
+
+__all__ = [
+    "ScreeningConfig",
+    "STAGES",
+    "FILTER_PRESETS",
+    "FILTERS",
+    "Screener",
+    "OracleScreener",
+    "build_screener",
+    "parse_filters",
+    "KeypointTable",
+]

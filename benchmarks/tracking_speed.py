@@ -1,0 +1,71 @@
+"""Tracking speed of the SLAM core: milliseconds per frame and stage, at 640x480.
+
+Targets (issue 3): median tracking time per frame (ORB extraction + tracking, local mapping
+excluded) <= 40 ms; the whole frame including local mapping <= 80 ms on average.
+ORB-SLAM2 (C++, laptop CPU) reports 36 ms per frame for tracking.
+
+Frames are loaded before timing (disk and PNG decoding are not SLAM). Usage::
+
+    python benchmarks/tracking_speed.py                     # synthetic static_xyz, 300 frames
+    python benchmarks/tracking_speed.py --preset static_halfsphere --frames 150
+    python benchmarks/tracking_speed.py --seq path/to/tum_sequence --frames 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--preset", default="static_xyz", help="synthetic preset (default static_xyz)")
+    ap.add_argument("--seq", default=None, help="a TUM-layout sequence folder instead of a synthetic preset")
+    ap.add_argument("--frames", type=int, default=300, help="frames to run (default 300)")
+    args = ap.parse_args()
+
+    from dynslam_lab.config import Config
+    from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.slam.runner import blas_single_thread
+    from dynslam_lab.slam.system import System
+
+    if args.seq:
+        seq = TumSequence(args.seq, max_frames=args.frames)
+    else:
+        from dynslam_lab.datasets.synthetic import synthetic_sequence
+
+        seq = TumSequence(synthetic_sequence(args.preset, n_frames=args.frames))
+    frames = [seq[i] for i in range(min(args.frames, len(seq)))]
+    for f in frames:
+        _ = f.gray  # colour conversion is the dataset's, not the tracker's
+    system = System(seq.camera, Config())
+    rows = []
+    t0 = time.perf_counter()
+    with blas_single_thread():
+        for f in frames:
+            r = system.process(f)
+            rows.append({**r.timings_ms, "kf": r.is_keyframe, "ok": r.tracked})
+    wall = time.perf_counter() - t0
+    stages = ["orb", "track", "local_mapping", "loop", "total"]
+    T = {s: np.array([r[s] for r in rows]) for s in stages}
+    tracking = T["orb"] + T["track"]
+    kf = np.array([r["kf"] for r in rows])
+    print(f"sequence: {seq.root.name}  frames: {len(rows)}  tracked: {sum(r['ok'] for r in rows)}  "
+          f"keyframes made: {int(kf.sum())}  wall: {wall:.1f} s")
+    print()
+    print(f"| {'stage':<28} | {'median ms':>9} | {'mean ms':>8} | {'p90 ms':>7} |")
+    print(f"|{'-' * 30}|{'-' * 11}|{'-' * 10}|{'-' * 9}|")
+    for name, v in [("ORB extraction", T["orb"]), ("tracking", T["track"]), ("ORB + tracking", tracking),
+                    ("local mapping (keyframes)", T["local_mapping"][kf] if kf.any() else np.zeros(1)),
+                    ("whole frame", T["total"])]:
+        print(f"| {name:<28} | {np.median(v):9.1f} | {np.mean(v):8.1f} | {np.percentile(v, 90):7.1f} |")
+    print()
+    med, mean = float(np.median(tracking)), float(np.mean(T["total"]))
+    print(f"median ORB + tracking: {med:.1f} ms (target 40 ms, ratio {med / 40:.2f}; ORB-SLAM2 C++ 36 ms)")
+    print(f"mean whole frame incl. local mapping: {mean:.1f} ms (target 80 ms, ratio {mean / 80:.2f})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,122 @@
+"""Start-up time of ``dynslam view`` for a large run (target: first picture within 3 s for
+1,000 keyframes).
+
+Writes a demo run folder (``dynslam_lab.viz.demo_run``) with K keyframes, then measures
+
+1. in process: ``load_run`` (read every file) and ``build_scene`` (send every layer);
+2. the command: from launching ``dynslam view`` to its "open http://..." line (Python start,
+   imports, loading, scene built, server listening);
+3. the browser (when Chromium is installed): headless Chromium loading the page and
+   rendering it to a screenshot, checked for trajectory-coloured pixels.
+
+Usage::
+
+    python benchmarks/view_startup.py                   # 1,000 keyframes
+    python benchmarks/view_startup.py --keyframes 200 --dense 500000
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--keyframes", type=int, default=1000)
+    ap.add_argument("--every", type=int, default=10, help="frames per keyframe (default 10)")
+    ap.add_argument("--map-points", type=int, default=50_000)
+    ap.add_argument("--dense", type=int, default=1_000_000, help="points of map.ply (default 1,000,000)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--keep", action="store_true", help="keep the run folder and screenshot")
+    args = ap.parse_args()
+
+    from dynslam_lab.viz.demo_run import write_demo_run
+    from dynslam_lab.viz.viser_scene import COLORS, SceneConfig, build_scene, free_port, load_run
+
+    import viser
+
+    tmp = Path(tempfile.mkdtemp(prefix="view_startup_"))
+    try:
+        t = time.perf_counter()
+        run_dir = write_demo_run(tmp / "run", n_frames=args.keyframes * args.every, keyframe_every=args.every,
+                                 n_map_points=args.map_points, n_dense_points=args.dense)
+        print(f"demo run: {args.keyframes} keyframes, {args.keyframes * args.every} poses, "
+              f"{args.map_points} map points, {args.dense} dense points (written in {time.perf_counter() - t:.1f} s)")
+        rows = []
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            run = load_run(run_dir)
+            t1 = time.perf_counter()
+            server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+            t2 = time.perf_counter()
+            build_scene(server, run, SceneConfig())
+            t3 = time.perf_counter()
+            server.stop()
+            rows.append((t1 - t0, t2 - t1, t3 - t2))
+        r = np.median(np.array(rows), axis=0)
+        print("\n| step (in process, median of %d) | seconds |" % args.repeat)
+        print("|---|---|")
+        print(f"| load_run (read all files) | {r[0]:.3f} |")
+        print(f"| start viser server | {r[1]:.3f} |")
+        print(f"| build_scene (send all layers) | {r[2]:.3f} |")
+
+        from dynslam_lab.viz.browser import HeadlessChromium, find_chromium
+
+        browser = HeadlessChromium(1000, 700) if find_chromium() else None  # its own start-up is not the viewer's
+        try:
+            port = free_port()
+            t0 = time.perf_counter()
+            proc = subprocess.Popen([sys.executable, "-m", "dynslam_lab", "view", str(run_dir), "--port", str(port),
+                                     "--timeout", "120"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            ready = None
+            for line in proc.stdout:
+                if "open http://" in line:
+                    ready = time.perf_counter() - t0
+                    break
+            import threading
+
+            threading.Thread(target=proc.stdout.read, daemon=True).start()  # keep the pipe drained
+            print(f"\n| command | seconds |\n|---|---|\n| `dynslam view` launch -> listening, scene sent | {ready:.2f} |")
+            if browser is not None:
+                first = []
+
+                def drawn(img):
+                    red = np.abs(img.astype(int) - COLORS["estimate"]).max(axis=2) < 60
+                    red[:320, -360:] = False  # GUI panel
+                    red[:160, :320] = False  # software-rendering notice
+                    if red.sum() > 200:
+                        first.append((time.perf_counter() - t0, int(red.sum())))
+                        return True
+                    return False
+
+                _, shots = browser.poll_screenshots(f"http://127.0.0.1:{port}/", drawn, timeout=60)
+                label = "not within 60 s" if not first else f"{first[0][0]:.2f}"
+                print(f"| `dynslam view` launch -> first screenshot showing the trajectory | {label} |")
+                print(f"\n(headless Chromium, SwiftShader software WebGL; {shots} screenshots polled"
+                      + (f"; {first[0][1]} trajectory-coloured pixels in the first picture)" if first else ")"))
+            else:
+                print("(chromium not installed: time to the first picture not measured)")
+            proc.terminate()
+            proc.wait(timeout=20)
+            proc.stdout.close()
+        finally:
+            if browser is not None:
+                browser.close()
+    finally:
+        if "--keep" not in sys.argv:
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            print("kept", tmp)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

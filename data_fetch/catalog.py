@@ -1,0 +1,214 @@
+"""What ``python -m data_fetch`` can fetch: datasets and models, with their official URLs.
+
+Every entry names its source, its licence and, where the publisher states them, its size
+(bytes) and SHA-256. Where the catalog does not know the checksum, the downloader records
+the SHA-256 of what it fetched in ``DEST/manifest.json`` so that a later fetch can be
+compared against it.
+
+URLs are built from a base per source (:data:`BASE_URLS`) and a file name, so tests can
+point a whole source at a local HTTP server (``monkeypatch.setitem(BASE_URLS, "tum", ...)``).
+
+Sources
+-------
+* TUM RGB-D benchmark (Sturm et al., IROS 2012, CC BY 4.0):
+  ``https://cvg.cit.tum.de/rgbd/dataset/freiburgN/rgbd_dataset_freiburgN_NAME.tgz``.
+* Bonn RGB-D Dynamic dataset (Palazzolo et al., IROS 2019; terms on the project page):
+  ``https://www.ipb.uni-bonn.de/html/projects/rgbd_dynamic2019/rgbd_bonn_NAME.zip``.
+* YOLOX ONNX models, Megvii GitHub release ``0.1.1rc0`` (Apache-2.0; listed in YOLOX's
+  ``demo/ONNXRuntime/README.md``).
+* NanoDet-Plus ONNX models, RangiLyu/nanodet GitHub release ``v1.0.0-alpha-1`` (Apache-2.0).
+  The original NanoDet-m has no ONNX release asset (its v0.0.1 release ships ncnn files,
+  the PyTorch weights are on Google Drive): its entry prints the export command instead.
+* Ultralytics YOLOv8 / YOLO11 (AGPL-3.0): no official ONNX download; the entry prints the
+  documented export command ``yolo export model=NAME.pt format=onnx``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Entry", "BASE_URLS", "CATALOG", "url_for", "get_entry", "CatalogError"]
+
+
+class CatalogError(KeyError):
+    """A name that is not in the catalog."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+#: Base URL of each source; an entry's URL is ``BASE_URLS[entry.source] + entry.path``.
+BASE_URLS: dict[str, str] = {
+    "tum": "https://cvg.cit.tum.de/rgbd/dataset/",
+    "bonn": "https://www.ipb.uni-bonn.de/html/projects/rgbd_dynamic2019/",
+    "yolox": "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/",
+    "nanodet": "https://github.com/RangiLyu/nanodet/releases/download/v1.0.0-alpha-1/",
+}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One fetchable item.
+
+    Attributes
+    ----------
+    name : catalog key, e.g. ``"fr3_walking_xyz"``, ``"bonn_crowd"``, ``"yolox_nano"``.
+    kind : ``"tum"``, ``"bonn"`` (archives of a sequence), ``"model"`` (an ONNX file), or
+        ``"export"`` (no download: ``note`` says how to make the file).
+    source : key into :data:`BASE_URLS` (empty for ``"export"``).
+    path : file name relative to the source's base URL.
+    licence : licence of the data or weights.
+    size : bytes, when the publisher states it (checked after download), else None.
+    sha256 : hex digest, when the publisher states it (checked), else None.
+    note : a line shown by ``list``/``get`` (for ``"export"``: the command to run).
+    """
+
+    name: str
+    kind: str
+    source: str
+    path: str
+    licence: str
+    size: int | None = None
+    sha256: str | None = None
+    note: str = ""
+
+    @property
+    def is_archive(self) -> bool:
+        """True when the file is a .tgz/.tar.gz/.zip to extract after download."""
+        return self.path.endswith((".tgz", ".tar.gz", ".zip"))
+
+
+# --------------------------------------------------------------------------------------
+# TUM RGB-D: sequence names as they appear in the official file names.
+TUM_SEQUENCES = {
+    1: ["xyz", "rpy", "360", "floor", "desk", "desk2", "room", "plant", "teddy"],
+    2: [
+        "xyz", "rpy", "360_hemisphere", "360_kidnap", "desk", "desk_with_person",
+        "large_no_loop", "large_with_loop", "pioneer_360", "pioneer_slam", "pioneer_slam2",
+        "pioneer_slam3", "coke", "dishes", "flowerbouquet", "flowerbouquet_brownbackground",
+        "metallic_sphere", "metallic_sphere2",
+    ],
+    3: [
+        "walking_xyz", "walking_static", "walking_halfsphere", "walking_rpy",
+        "sitting_xyz", "sitting_static", "sitting_halfsphere", "sitting_rpy",
+        "long_office_household", "cabinet", "large_cabinet", "teddy",
+        "nostructure_notexture_far", "nostructure_notexture_near_withloop",
+        "nostructure_texture_far", "nostructure_texture_near_withloop",
+        "structure_notexture_far", "structure_notexture_near",
+        "structure_texture_far", "structure_texture_near",
+    ],
+}
+
+# Bonn RGB-D Dynamic: the 24 dynamic sequences plus the static and kidnapping ones.
+BONN_SEQUENCES = [
+    "balloon", "balloon2", "balloon_tracking", "balloon_tracking2",
+    "crowd", "crowd2", "crowd3",
+    "moving_nonobstructing_box", "moving_nonobstructing_box2",
+    "moving_obstructing_box", "moving_obstructing_box2",
+    "person_tracking", "person_tracking2",
+    "placing_nonobstructing_box", "placing_nonobstructing_box2", "placing_nonobstructing_box3",
+    "placing_obstructing_box",
+    "removing_nonobstructing_box", "removing_nonobstructing_box2", "removing_obstructing_box",
+    "synchronous", "synchronous2",
+    "kidnapping_box", "kidnapping_box2",
+    "static", "static_close_far",
+]
+
+_ULTRALYTICS_NOTE = (
+    "no official ONNX download; export it yourself (pip install ultralytics): "
+    "`yolo export model={stem}.pt format=onnx`{extra}. Ultralytics weights are AGPL-3.0: "
+    "software that uses them must be released under the AGPL-3.0 (or an Ultralytics "
+    "enterprise licence)."
+)
+
+
+def _build() -> dict[str, Entry]:
+    cat: dict[str, Entry] = {}
+    for n, names in TUM_SEQUENCES.items():
+        for s in names:
+            cat[f"fr{n}_{s}"] = Entry(
+                name=f"fr{n}_{s}",
+                kind="tum",
+                source="tum",
+                path=f"freiburg{n}/rgbd_dataset_freiburg{n}_{s}.tgz",
+                licence="CC BY 4.0 (TUM RGB-D benchmark, Sturm et al. 2012)",
+                note=f"TUM RGB-D freiburg{n}/{s}",
+            )
+    for s in BONN_SEQUENCES:
+        cat[f"bonn_{s}"] = Entry(
+            name=f"bonn_{s}",
+            kind="bonn",
+            source="bonn",
+            path=f"rgbd_bonn_{s}.zip",
+            licence="Bonn RGB-D Dynamic dataset (Palazzolo et al. 2019), see the project page for terms",
+            note=f"Bonn RGB-D Dynamic {s}",
+        )
+    for v, size_note in (("nano", "416x416"), ("tiny", "416x416"), ("s", "640x640")):
+        cat[f"yolox_{v}"] = Entry(
+            name=f"yolox_{v}",
+            kind="model",
+            source="yolox",
+            path=f"yolox_{v}.onnx",
+            licence="Apache-2.0 (Megvii YOLOX)",
+            note=f"YOLOX-{v.capitalize()} COCO detector, input {size_note} BGR 0..255",
+        )
+    for res in (320, 416):
+        cat[f"nanodet_plus_m_{res}"] = Entry(
+            name=f"nanodet_plus_m_{res}",
+            kind="model",
+            source="nanodet",
+            path=f"nanodet-plus-m_{res}.onnx",
+            licence="Apache-2.0 (RangiLyu NanoDet)",
+            note=f"NanoDet-Plus-m COCO detector, input {res}x{res}",
+        )
+    cat["nanodet_m"] = Entry(
+        name="nanodet_m",
+        kind="export",
+        source="",
+        path="nanodet_m.onnx",
+        licence="Apache-2.0 (RangiLyu NanoDet)",
+        note=(
+            "the NanoDet releases ship no NanoDet-m ONNX file (v0.0.1 has ncnn models; the "
+            "PyTorch weights are linked from the README's legacy model zoo). Export it from a "
+            "NanoDet checkout: `python tools/export_onnx.py --cfg_path CONFIG --model_path "
+            "nanodet_m.ckpt`, or use nanodet_plus_m_320 (downloadable)."
+        ),
+    )
+    for stem, extra in (
+        ("yolov8n-seg", " (add imgsz=320 for a 320x320 input)"),
+        ("yolov8n", ""),
+        ("yolo11n-seg", ""),
+        ("yolo11n", ""),
+    ):
+        key = stem.replace("-", "_")
+        cat[key] = Entry(
+            name=key,
+            kind="export",
+            source="",
+            path=f"{stem}.onnx",
+            licence="AGPL-3.0 (Ultralytics)",
+            note=_ULTRALYTICS_NOTE.format(stem=stem, extra=extra),
+        )
+    return cat
+
+
+#: Every fetchable item by name.
+CATALOG: dict[str, Entry] = _build()
+
+
+def get_entry(name: str) -> Entry:
+    """The entry called ``name``; a clear error suggesting close names otherwise."""
+    if name in CATALOG:
+        return CATALOG[name]
+    import difflib
+
+    close = difflib.get_close_matches(name, CATALOG, n=5, cutoff=0.5)
+    hint = f"; did you mean {', '.join(close)}?" if close else "; see `python -m data_fetch list`"
+    raise CatalogError(f"{name!r} is not in the catalog{hint}")
+
+
+def url_for(entry: Entry) -> str:
+    """The download URL of ``entry`` (``BASE_URLS[source] + path``)."""
+    if entry.kind == "export":
+        raise CatalogError(f"{entry.name} has no download URL: {entry.note}")
+    return BASE_URLS[entry.source] + entry.path

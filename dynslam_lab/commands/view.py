@@ -1,0 +1,76 @@
+"""``dynslam view``: the 3D scene of a run in the browser (viser).
+
+Example::
+
+    dynslam view runs/walking_xyz                 # http://127.0.0.1:8080
+    dynslam view runs/walking_xyz --port 8090 --gt data/walking_xyz/groundtruth.txt
+
+Shows the estimated and ground-truth trajectories, keyframe frustums with thumbnails, the
+sparse map (static / dynamic), the dense map ``map.ply``, loop edges, and a playback slider.
+The server listens on 127.0.0.1 only, unless ``--host`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "view",
+        help="show a run's trajectories, keyframes and maps in the browser (viser)",
+        description=(
+            "Start a viser server showing the run folder OUTDIR written by 'dynslam run': "
+            "trajectories, keyframe frustums with thumbnails, sparse and dense maps, loop edges, "
+            "and a playback slider. Open the printed address in a browser; Ctrl+C stops."
+        ),
+    )
+    p.add_argument("outdir", metavar="OUTDIR", help="output folder of 'dynslam run'")
+    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; the next free one if taken)")
+    p.add_argument(
+        "--host", default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0 exposes the scene to the network)",
+    )
+    p.add_argument("--gt", default=None, metavar="FILE",
+                   help="ground-truth trajectory (TUM format); default: the sequence's groundtruth.txt if known")
+    p.add_argument("--max-dense-points", type=int, default=1_000_000, metavar="N",
+                   help="send at most N points of map.ply (random subset; default 1,000,000)")
+    p.add_argument("--timeout", type=float, default=None, metavar="S",
+                   help="stop the server after S seconds (for scripts and tests; default: run until Ctrl+C)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import threading
+    import time
+
+    from ..viz.viser_scene import SceneConfig, load_run, play_loop, start_viewer
+
+    if not 0 < args.port < 65536:
+        raise ValueError(f"--port must be in 1..65535, got {args.port}")
+    if args.max_dense_points < 0:
+        raise ValueError(f"--max-dense-points must be >= 0, got {args.max_dense_points}")
+    t0 = time.perf_counter()
+    data = load_run(args.outdir, ground_truth=args.gt)
+    t_load = time.perf_counter() - t0
+    server, handles = start_viewer(data, port=args.port, host=args.host,
+                                   config=SceneConfig(max_dense_points=args.max_dense_points))
+    print(
+        f"dynslam view: {args.outdir}: {len(data.trajectory) if data.trajectory is not None else 0} poses, "
+        f"{data.n_keyframes} keyframes, "
+        f"{0 if data.map_xyz is None else len(data.map_xyz)} map points, "
+        f"{0 if data.dense_xyz is None else len(data.dense_xyz)} dense points "
+        f"(loaded in {t_load:.2f} s, scene built in {handles.build_seconds:.2f} s)"
+    )
+    print(f"dynslam view: open http://{server.get_host()}:{server.get_port()}/  (Ctrl+C to stop)", flush=True)
+    stop = threading.Event()
+    player = threading.Thread(target=play_loop, args=(handles, stop), daemon=True)
+    player.start()
+    try:
+        deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        stop.set()
+        server.stop()
+    return 0

@@ -1,0 +1,73 @@
+"""Parameters of dynamic-feature screening: one frozen dataclass tree.
+
+Each stage keeps its own parameter dataclass beside its algorithm (unit, default and source
+paper on every field); :class:`ScreeningConfig` gathers them, plus the class motion priors of
+the detection stage and the stage lists of the named filters. Change a value with
+``dataclasses.replace`` (what a notebook slider does) or from TOML::
+
+    [screening.depth_ransac]
+    var_threshold = 0.43
+    [screening.multiview]
+    reprojection_px = 4.0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..detection.config import MotionPriorConfig
+from .depth_ransac import DepthRansacConfig
+from .epipolar import EpipolarConfig, LkConfig
+from .flow import FlowConfig
+from .motion_probability import RestorationConfig
+from .multiview import MultiViewConfig
+from .semantic import SemanticConfig
+
+__all__ = ["ScreeningConfig", "STAGES", "FILTER_PRESETS"]
+
+#: Every stage a screener can chain, in the order they run.
+STAGES = ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "seed002", "restoration")
+
+#: Named filters (``dynslam run --filters NAME``) -> stages. ``oracle`` is handled apart.
+FILTER_PRESETS: dict[str, tuple[str, ...]] = {
+    "none": (),
+    "semantic": ("semantic",),  # YOLO-SLAM "D", seed 003 "only with YOLACT"
+    "depth_ransac": ("semantic", "depth_ransac"),  # YOLO-SLAM "D + G" (boxes + depth-RANSAC)
+    "geometry": ("epipolar", "multiview"),  # seed 003 "only with multi-view geometry"
+    "full": ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "restoration"),
+}
+
+
+@dataclass(frozen=True)
+class ScreeningConfig:
+    """All screening parameters (seeds 000, 002, 003, 004)."""
+
+    semantic: SemanticConfig = field(default_factory=SemanticConfig)  # semantic prior (all seeds)
+    depth_ransac: DepthRansacConfig = field(default_factory=DepthRansacConfig)  # YOLO-SLAM (seed 000)
+    lk: LkConfig = field(default_factory=LkConfig)  # LK matches with the previous frame (seed 004)
+    epipolar: EpipolarConfig = field(default_factory=EpipolarConfig)  # epipolar check (seeds 002-004)
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)  # RGB-D multi-view check (seed 003)
+    flow: FlowConfig = field(default_factory=FlowConfig)  # adaptive-threshold Farneback flow (seed 003)
+    restoration: RestorationConfig = field(default_factory=RestorationConfig)  # motion probability (seed 004)
+    priors: MotionPriorConfig = field(default_factory=MotionPriorConfig)  # class tables (detection.coco)
+    # Stages of the "full" filter; add "seed002" for seed 002's level rule. Default: see FILTER_PRESETS.
+    full_stages: tuple[str, ...] = FILTER_PRESETS["full"]
+    # How epipolar and multi-view verdicts combine: "any" (either test), "both" (both must flag), or "auto":
+    # "both" when the semantic stage runs (masks already hold the people; each test alone flags 1-2.5% of
+    # static keypoints on synthetic walking, mostly at people's occlusion edges, together 0.3%), else "any"
+    # (geometry is the only signal). Ours, "auto".
+    geometric_vote: str = "auto"
+    # Geometric flags within this distance of an a-priori dynamic mask/box are ignored when the semantic stage
+    # runs: there the mask decides, and the keypoint patch straddles a moving edge (px). Ours, 10; 0 = off.
+    geometry_mask_margin_px: int = 10
+    # With masks from the detector, also run depth-RANSAC inside them (else only mask-less boxes). Ours, False.
+    depth_ransac_with_masks: bool = False
+
+    def __post_init__(self) -> None:
+        if self.geometric_vote not in ("any", "both", "auto"):
+            raise ValueError(f"ScreeningConfig.geometric_vote must be 'any', 'both' or 'auto', got {self.geometric_vote!r}")
+        if self.geometry_mask_margin_px < 0:
+            raise ValueError(f"ScreeningConfig.geometry_mask_margin_px must be >= 0, got {self.geometry_mask_margin_px}")
+        unknown = [s for s in self.full_stages if s not in STAGES]
+        if unknown:
+            raise ValueError(f"ScreeningConfig.full_stages: unknown stages {unknown}; known: {list(STAGES)}")

@@ -1,0 +1,199 @@
+"""Epipolar check of keypoint matches (seed 002 eqs. 15-17, seed 003 eq. 1, seed 004 Sec. 2.3).
+
+A static scene point seen in two frames satisfies the epipolar constraint
+``p2^T F p1 = 0`` (seed 004 eq. 1, seed 002 eq. 15): its pixel ``p2`` in the current frame
+lies on the epipolar line of its pixel ``p1`` in the previous frame::
+
+    l2 = (a, b, c)^T = F p1                                              (16)
+    d  = |p2^T l2| / sqrt(a^2 + b^2)                                     (17)
+
+A point on an object that moved between the two frames leaves its line; ``d > mu`` marks it
+dynamic. ASG-SLAM (seed 004, Sec. 2.3) spells the procedure out, and we follow it:
+
+1. match keypoints between the frames with pyramidal Lucas-Kanade optical flow (we track
+   the current keypoints back into the previous image and keep a pair only when tracking
+   forward again returns within ``fb_max_px``);
+2. leave out pairs inside potentially moving objects (the semantic prior) and near the image
+   border;
+3. estimate F from the remaining pairs with RANSAC;
+4. compute ``d`` for every matched keypoint and compare with ``mu`` (``threshold_px``).
+
+None of the papers gives ``mu``; the default 1 px is DS-SLAM's value (Yu et al. 2018), and the
+notebook ``05_epipolar_and_flow`` shows what moving it does. A point moving *along* its
+epipolar line stays undetected: the limitation the multi-view test (:mod:`.multiview`) removes.
+With a camera at rest F is undefined (no baseline); then :func:`estimate_fundamental` returns
+None when the matched pixels barely move and the stage flags nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .table import check_uv
+
+__all__ = [
+    "LkConfig",
+    "EpipolarConfig",
+    "EpipolarResult",
+    "track_lk",
+    "estimate_fundamental",
+    "epipolar_distance",
+    "epipolar_check",
+]
+
+
+@dataclass(frozen=True)
+class LkConfig:
+    """Pyramidal Lucas-Kanade matching of keypoints between frames (ASG-SLAM, seed 004, Sec. 2.3)."""
+
+    win_size: int = 11  # search window side (px); OpenCV default 21, ours 11 (1.5x faster than 15, same P/R on synthetic)
+    max_level: int = 2  # pyramid levels above the image (reach ~ win * 2^level px); OpenCV default 3, ours 2
+    fb_max_px: float = 1.0  # forward-backward error above which a pair is dropped (px); ours, 1.0
+    max_iterations: int = 30  # LK iterations per level; OpenCV default 30
+    epsilon: float = 0.01  # LK convergence (px); OpenCV default 0.01
+
+    def __post_init__(self) -> None:
+        if self.win_size < 3 or self.max_level < 0 or self.fb_max_px <= 0:
+            raise ValueError("LkConfig: win_size must be >= 3, max_level >= 0, fb_max_px > 0")
+
+
+@dataclass(frozen=True)
+class EpipolarConfig:
+    """Parameters of the epipolar check (seeds 002, 003, 004)."""
+
+    threshold_px: float = 1.0  # mu of seed 002 eq. 17 (px); not given in the papers, DS-SLAM uses 1.0
+    border_px: float = 20.0  # pairs this close to the image edge are left out of F (px); seed 004, value ours
+    ransac_threshold_px: float = 1.0  # RANSAC inlier distance for F (px); ours, 1.0
+    ransac_confidence: float = 0.999  # RANSAC confidence for F; ours, 0.999
+    min_pairs: int = 15  # fewer pairs for F: the check is skipped; ours, 15 (8-point needs 8)
+    min_parallax_px: float = 0.5  # median pixel motion below which F is undefined (camera at rest); ours, 0.5
+    seed: int = 0  # OpenCV RNG seed for RANSAC; ours, 0
+
+    def __post_init__(self) -> None:
+        if self.threshold_px <= 0 or self.ransac_threshold_px <= 0:
+            raise ValueError("EpipolarConfig: threshold_px and ransac_threshold_px must be > 0 (pixels)")
+        if self.min_pairs < 8:
+            raise ValueError(f"EpipolarConfig.min_pairs must be >= 8 (eight-point algorithm), got {self.min_pairs}")
+
+
+@dataclass
+class EpipolarResult:
+    """Epipolar check of one frame.
+
+    Attributes
+    ----------
+    F : ``(3, 3)`` fundamental matrix with ``p_cur^T F p_prev = 0``, or None when skipped.
+    distance : ``(N,)`` px distance of each keypoint to its epipolar line (eq. 17), ``nan`` unmatched.
+    dynamic : ``(N,)`` bool, ``distance > threshold_px``.
+    used : ``(N,)`` bool, pairs that entered the RANSAC estimate of F.
+    """
+
+    F: np.ndarray | None
+    distance: np.ndarray
+    dynamic: np.ndarray
+    used: np.ndarray
+
+
+def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()):
+    """Match current keypoints into the previous image with pyramidal LK.
+
+    Parameters
+    ----------
+    prev_gray, gray : ``(H, W)`` uint8 previous and current images.
+    uv : ``(N, 2)`` current keypoint pixels.
+
+    Returns
+    -------
+    uv_prev : ``(N, 2)`` float64 matched pixels in the previous image (``nan`` where lost).
+    ok : ``(N,)`` bool, tracked and forward-backward consistent.
+    """
+    uv = check_uv(uv)
+    if prev_gray.shape != gray.shape or gray.ndim != 2:
+        raise ValueError(f"track_lk: images must be equal (H, W) grey, got {prev_gray.shape} and {gray.shape}")
+    n = len(uv)
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, config.max_iterations, config.epsilon)
+    win = (config.win_size, config.win_size)
+    p0 = uv.astype(np.float32).reshape(-1, 1, 2)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - uv, axis=1)
+    h, w = gray.shape
+    q = p1.reshape(-1, 2).astype(np.float64)
+    ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < config.fb_max_px)
+    ok &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+    q[~ok] = np.nan
+    return q, ok
+
+
+def epipolar_distance(F: np.ndarray, p_prev: np.ndarray, p_cur: np.ndarray) -> np.ndarray:
+    """Eqs. 16-17: distance (px) of ``p_cur (N, 2)`` to the epipolar line ``F p_prev``."""
+    F = np.asarray(F, np.float64)
+    if F.shape != (3, 3):
+        raise ValueError(f"epipolar_distance: F must be (3, 3), got {F.shape}")
+    p1 = check_uv(p_prev, "p_prev")
+    p2 = check_uv(p_cur, "p_cur")
+    if len(p1) != len(p2):
+        raise ValueError(f"epipolar_distance: {len(p1)} previous and {len(p2)} current pixels")
+    h1 = np.column_stack([p1, np.ones(len(p1))])
+    h2 = np.column_stack([p2, np.ones(len(p2))])
+    lines = h1 @ F.T  # (N, 3): l2 = F p1 for every row
+    num = np.abs(np.sum(h2 * lines, axis=1))
+    return num / np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2)
+
+
+def estimate_fundamental(p_prev: np.ndarray, p_cur: np.ndarray, config: EpipolarConfig = EpipolarConfig()):
+    """RANSAC fundamental matrix from matched pixels ``(M, 2)``; ``(F, inliers)`` or ``(None, None)``
+    with too few pairs or too little parallax (a camera at rest)."""
+    p1 = check_uv(p_prev, "p_prev")
+    p2 = check_uv(p_cur, "p_cur")
+    if len(p1) < config.min_pairs:
+        return None, None
+    if np.median(np.linalg.norm(p2 - p1, axis=1)) < config.min_parallax_px:
+        return None, None
+    cv2.setRNGSeed(config.seed)
+    F, mask = cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, config.ransac_threshold_px, config.ransac_confidence)
+    if F is None or F.shape != (3, 3):
+        return None, None
+    return F, mask.reshape(-1).astype(bool)
+
+
+def epipolar_check(
+    uv: np.ndarray,
+    uv_prev: np.ndarray,
+    matched: np.ndarray,
+    exclude: np.ndarray | None,
+    image_size: tuple[int, int],
+    config: EpipolarConfig = EpipolarConfig(),
+) -> EpipolarResult:
+    """Steps 2-4: F from the pairs outside ``exclude`` and the border, then eq. 17 for all pairs.
+
+    Parameters
+    ----------
+    uv : ``(N, 2)`` current keypoints; ``uv_prev`` ``(N, 2)`` their matches in the previous image.
+    matched : ``(N,)`` bool valid pairs (from :func:`track_lk`).
+    exclude : ``(N,)`` bool pairs on potentially moving objects (left out of F), or None.
+    image_size : ``(H, W)``.
+    """
+    uv = check_uv(uv)
+    uv_prev = check_uv(uv_prev, "uv_prev")
+    n = len(uv)
+    matched = np.asarray(matched, bool).reshape(-1)
+    exclude = np.zeros(n, bool) if exclude is None else np.asarray(exclude, bool).reshape(-1)
+    if not (len(uv_prev) == len(matched) == len(exclude) == n):
+        raise ValueError("epipolar_check: uv, uv_prev, matched and exclude must have the same length")
+    h, w = image_size
+    b = config.border_px
+    away = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
+    used = matched & ~exclude & away
+    distance = np.full(n, np.nan)
+    F, _ = estimate_fundamental(uv_prev[used], uv[used], config)
+    if F is None:
+        return EpipolarResult(None, distance, np.zeros(n, bool), used)
+    distance[matched] = epipolar_distance(F, uv_prev[matched], uv[matched])
+    dynamic = matched & (distance > config.threshold_px)
+    return EpipolarResult(F, distance, dynamic, used)

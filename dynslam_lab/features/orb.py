@@ -1,0 +1,227 @@
+"""ORB features spread evenly over the image and over a scale pyramid.
+
+ORB-SLAM2 (Mur-Artal and Tardos, IEEE T-RO 2017, Sec. III-A, and ORB-SLAM, T-RO 2015,
+Sec. III-A) extracts FAST corners on an image pyramid with ``n_levels`` levels, each
+level ``s`` scaled by ``1 / scale_factor**s``. The ``n_features`` keypoints are shared
+among the levels as a geometric series, so that every level gets the same number of
+features per unit area::
+
+    n_s = N (1 - 1/f) / (1 - (1/f)^L) * (1/f)^s ,   s = 0 .. L-1        (f = scale_factor)
+
+Inside a level the features are spread over a grid of cells (ORB-SLAM2 uses 30x30 px
+cells and a quadtree); in each cell the strongest corners (highest Harris response) win.
+A cell with no corner at the FAST threshold ``fast_threshold`` (20) is searched again at
+``min_fast_threshold`` (7). The orientation is the intensity centroid angle and the
+descriptor the 256-bit rotated BRIEF (Rublee et al., ICCV 2011).
+
+Our reading: OpenCV's ``cv2.ORB`` builds the pyramid, detects FAST corners, scores them
+with the Harris measure, computes the angle and the descriptor. We ask it for more
+corners than needed and then do the ORB-SLAM part ourselves, vectorised: per level a
+quota by the series above, per cell of a ``grid_cols x grid_rows`` grid an equal share of
+that quota, the strongest corners first, and the quota a cell cannot fill is handed to the
+remaining corners of the level by response. The same ORB object then computes the
+descriptors of the kept keypoints.
+
+The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["OrbConfig", "Features", "extract_features", "level_quotas", "scale_factors"]
+
+
+@dataclass(frozen=True)
+class OrbConfig:
+    """Parameters of ORB extraction (ORB-SLAM2 ``ORBextractor`` settings for TUM RGB-D)."""
+
+    n_features: int = 1000  # number of keypoints per image; ORB-SLAM2 TUM1-3.yaml: 1000
+    scale_factor: float = 1.2  # ratio between pyramid levels; ORB-SLAM2: 1.2
+    n_levels: int = 8  # pyramid levels; ORB-SLAM2: 8
+    fast_threshold: int = 20  # FAST intensity threshold (grey levels); ORB-SLAM2 iniThFAST: 20
+    min_fast_threshold: int = 7  # retry threshold where too few corners; ORB-SLAM2 minThFAST: 7
+    grid_cols: int = 20  # grid cells across the level-0 image (640/20 = 32 px, ORB-SLAM2 uses 30 px)
+    grid_rows: int = 15  # grid cells down the level-0 image (480/15 = 32 px)
+    edge_threshold: int = 19  # border without features (px); ORB-SLAM2 EDGE_THRESHOLD: 19
+    patch_size: int = 31  # BRIEF / orientation patch (px); ORB-SLAM2 PATCH_SIZE: 31
+    oversample: float = 2.5  # corners asked from OpenCV per kept keypoint (ours; bucketing needs spare)
+
+    def __post_init__(self) -> None:
+        if self.n_features < 1:
+            raise ValueError(f"OrbConfig.n_features must be >= 1, got {self.n_features}")
+        if not self.scale_factor > 1.0:
+            raise ValueError(f"OrbConfig.scale_factor must be > 1, got {self.scale_factor}")
+        if self.n_levels < 1:
+            raise ValueError(f"OrbConfig.n_levels must be >= 1, got {self.n_levels}")
+        if self.grid_cols < 1 or self.grid_rows < 1:
+            raise ValueError(f"OrbConfig grid must be at least 1x1, got {self.grid_cols}x{self.grid_rows}")
+        if not 0 < self.min_fast_threshold <= self.fast_threshold:
+            raise ValueError(
+                f"OrbConfig needs 0 < min_fast_threshold <= fast_threshold, got "
+                f"{self.min_fast_threshold} and {self.fast_threshold}"
+            )
+        if self.oversample < 1.0:
+            raise ValueError(f"OrbConfig.oversample must be >= 1, got {self.oversample}")
+
+
+@dataclass
+class Features:
+    """ORB keypoints of one image.
+
+    Attributes
+    ----------
+    uv : ``(N, 2)`` float32 pixel coordinates (level 0), x right, y down.
+    octave : ``(N,)`` int pyramid level the keypoint was found on.
+    angle : ``(N,)`` float orientation in degrees [0, 360).
+    response : ``(N,)`` float Harris response (larger = stronger corner).
+    descriptors : ``(N, 32)`` uint8 rotated-BRIEF descriptors (256 bits).
+    """
+
+    uv: np.ndarray
+    octave: np.ndarray
+    angle: np.ndarray
+    response: np.ndarray
+    descriptors: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.uv = np.asarray(self.uv, dtype=np.float32).reshape(-1, 2)
+        n = len(self.uv)
+        self.octave = np.asarray(self.octave, dtype=np.int64).reshape(-1)
+        self.angle = np.asarray(self.angle, dtype=np.float64).reshape(-1)
+        self.response = np.asarray(self.response, dtype=np.float64).reshape(-1)
+        self.descriptors = np.asarray(self.descriptors, dtype=np.uint8).reshape(-1, 32)
+        for name in ("octave", "angle", "response", "descriptors"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"Features.{name} has {len(getattr(self, name))} rows, uv has {n}")
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+    def select(self, keep: np.ndarray) -> "Features":
+        """The features at indices / boolean mask ``keep``."""
+        return Features(self.uv[keep], self.octave[keep], self.angle[keep], self.response[keep], self.descriptors[keep])
+
+    @classmethod
+    def empty(cls) -> "Features":
+        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 32), np.uint8))
+
+
+def scale_factors(cfg: OrbConfig) -> np.ndarray:
+    """``(n_levels,)`` scale of each pyramid level: ``scale_factor ** level``."""
+    return cfg.scale_factor ** np.arange(cfg.n_levels, dtype=np.float64)
+
+
+def level_quotas(cfg: OrbConfig) -> np.ndarray:
+    """``(n_levels,)`` int: features wanted per level, the geometric series of ORB-SLAM2.
+
+    ``n_s = N (1 - 1/f) / (1 - (1/f)^L) (1/f)^s``, rounded, the last level takes the rest.
+    """
+    inv = 1.0 / cfg.scale_factor
+    first = cfg.n_features * (1.0 - inv) / (1.0 - inv**cfg.n_levels)
+    q = np.round(first * inv ** np.arange(cfg.n_levels)).astype(np.int64)
+    q[-1] = max(cfg.n_features - int(q[:-1].sum()), 0)
+    return q
+
+
+def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int) -> tuple[cv2.ORB, list]:
+    orb = cv2.ORB_create(
+        nfeatures=int(np.ceil(cfg.n_features * cfg.oversample)),
+        scaleFactor=float(cfg.scale_factor),
+        nlevels=int(cfg.n_levels),
+        edgeThreshold=int(cfg.edge_threshold),
+        patchSize=int(cfg.patch_size),
+        fastThreshold=int(fast_threshold),
+    )
+    return orb, list(orb.detect(gray, None))
+
+
+def _bucket(uv: np.ndarray, octave: np.ndarray, response: np.ndarray, shape: tuple[int, int], cfg: OrbConfig) -> np.ndarray:
+    """Indices of the keypoints kept by per-level quotas and per-cell shares (vectorised)."""
+    h, w = shape
+    quotas = level_quotas(cfg)
+    n_cells = cfg.grid_cols * cfg.grid_rows
+    col = np.clip((uv[:, 0] * cfg.grid_cols / w).astype(np.int64), 0, cfg.grid_cols - 1)
+    row = np.clip((uv[:, 1] * cfg.grid_rows / h).astype(np.int64), 0, cfg.grid_rows - 1)
+    cell = octave * n_cells + row * cfg.grid_cols + col
+    # Rank of each keypoint inside its (level, cell), strongest first.
+    order = np.lexsort((-response, cell))
+    sorted_cell = cell[order]
+    start = np.searchsorted(sorted_cell, sorted_cell, side="left")
+    rank = np.empty(len(uv), dtype=np.int64)
+    rank[order] = np.arange(len(uv)) - start
+    # Share of a level's quota per cell: quota / cells (at least one per cell).
+    share = np.maximum(np.ceil(quotas / n_cells), 1).astype(np.int64)
+    lvl = np.clip(octave, 0, cfg.n_levels - 1)
+    first_pass = rank < share[lvl]
+    # Per level: keep the first-pass winners by response up to the quota, then fill the
+    # rest of the quota with the strongest remaining corners (cells with spare corners).
+    priority = np.where(first_pass, 0, 1)
+    order2 = np.lexsort((-response, priority, lvl))
+    lvl_sorted = lvl[order2]
+    pos_in_level = np.arange(len(uv)) - np.searchsorted(lvl_sorted, lvl_sorted, side="left")
+    keep_sorted = pos_in_level < quotas[lvl_sorted]
+    return np.sort(order2[keep_sorted])
+
+
+def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.ndarray | None = None) -> Features:
+    """Extract ORB features spread over the image and the scale pyramid.
+
+    Parameters
+    ----------
+    gray : ``(H, W)`` uint8 grey image.
+    cfg : extraction parameters.
+    mask : optional ``(H, W)`` bool/uint8; features only where non-zero.
+
+    Returns
+    -------
+    Features with at most ``cfg.n_features`` keypoints (fewer in low-texture images).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> img = (np.random.default_rng(0).random((120, 160)) * 255).astype(np.uint8)
+    >>> f = extract_features(img, OrbConfig(n_features=100))
+    >>> f.descriptors.shape[1]
+    32
+    """
+    gray = np.asarray(gray)
+    if gray.ndim != 2:
+        raise ValueError(f"extract_features expects an (H, W) grey image, got shape {gray.shape}")
+    if gray.dtype != np.uint8:
+        raise ValueError(f"extract_features expects a uint8 image, got {gray.dtype}")
+    min_side = 2 * cfg.edge_threshold + 1
+    if gray.shape[0] < min_side or gray.shape[1] < min_side:
+        raise ValueError(f"extract_features: image {gray.shape} smaller than {min_side} px (edge_threshold)")
+    orb, kps = _detect(gray, cfg, cfg.fast_threshold)
+    if len(kps) < cfg.n_features:
+        # Low texture: redo the detection with the lower FAST threshold (ORB-SLAM2 minThFAST).
+        orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != gray.shape:
+            raise ValueError(f"extract_features: mask shape {mask.shape} != image shape {gray.shape}")
+    if not kps:
+        return Features.empty()
+    uv = np.array([k.pt for k in kps], dtype=np.float32)
+    octave = np.array([k.octave for k in kps], dtype=np.int64)
+    response = np.array([k.response for k in kps], dtype=np.float64)
+    idx = np.arange(len(kps))
+    if mask is not None:
+        ui = np.clip(np.round(uv[:, 0]).astype(int), 0, gray.shape[1] - 1)
+        vi = np.clip(np.round(uv[:, 1]).astype(int), 0, gray.shape[0] - 1)
+        idx = idx[mask[vi, ui] > 0]
+    keep = idx[_bucket(uv[idx], octave[idx], response[idx], gray.shape, cfg)]
+    kept, desc = orb.compute(gray, [kps[i] for i in keep])
+    if desc is None or not kept:
+        return Features.empty()
+    return Features(
+        uv=np.array([k.pt for k in kept], dtype=np.float32),
+        octave=np.array([k.octave for k in kept], dtype=np.int64),
+        angle=np.array([k.angle for k in kept], dtype=np.float64),
+        response=np.array([k.response for k in kept], dtype=np.float64),
+        descriptors=desc,
+    )

@@ -1,0 +1,202 @@
+"""Least-squares alignment of two point sets: Umeyama (SVD) and Horn (unit quaternion).
+
+Before the absolute trajectory error can be measured, the estimated camera centres
+``x_i`` (in the SLAM map frame) and the ground-truth centres ``y_i`` (in the motion-capture
+frame) must be brought into one frame. Both methods below solve
+
+.. math::
+
+    \\min_{c, R, t} \\; \\frac{1}{n} \\sum_{i=1}^{n} \\lVert y_i - (c R x_i + t) \\rVert^2
+
+in closed form, with ``R`` a rotation (``det R = +1``), ``t`` a translation and ``c`` a scale
+that is fixed to 1 for a rigid SE(3) alignment and estimated for a similarity Sim(3).
+
+Umeyama (1991), "Least-squares estimation of transformation parameters between two point
+patterns", IEEE TPAMI 13(4), Section II, with the means ``mu_x, mu_y`` (eqs. 34-35), the
+variance of ``x`` ``sigma_x^2`` (eq. 36) and the cross-covariance (eq. 38)
+
+.. math::
+
+    \\Sigma_{xy} = \\frac{1}{n} \\sum_i (y_i - \\mu_y)(x_i - \\mu_x)^T = U D V^T ,
+
+takes ``S = diag(1, 1, -1)`` when ``det U det V < 0`` (else the identity, eq. 39/43) and
+
+.. math::
+
+    R = U S V^T \\;(40), \\quad t = \\mu_y - c R \\mu_x \\;(41), \\quad
+    c = \\frac{1}{\\sigma_x^2} \\operatorname{tr}(D S) \\;(42).
+
+Horn (1987), "Closed-form solution of absolute orientation using unit quaternions", JOSA A
+4(4), Sections 4-5: the rotation is the eigenvector of the largest eigenvalue of a
+symmetric 4x4 matrix ``N`` built from the cross-covariance; it gives the same answer and
+serves here as an independent check of Umeyama. For the scale we take Umeyama's
+asymmetric form (eq. 42) in both, so that the two methods minimise the same cost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .se3 import quat_xyzw_to_matrix
+
+__all__ = ["Alignment", "AlignmentError", "umeyama_alignment", "horn_alignment"]
+
+
+class AlignmentError(ValueError):
+    """The two point sets cannot be aligned (shape mismatch, too few or degenerate points)."""
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """A similarity transform ``y = scale * R @ x + t``.
+
+    Attributes
+    ----------
+    R : ``(3, 3)`` rotation, ``det R = +1``.
+    t : ``(3,)`` translation (metres, in the target frame).
+    scale : scale factor ``c`` (1.0 for a rigid SE(3) alignment).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    scale: float = 1.0
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``(4, 4)`` homogeneous Sim(3) matrix ``[[c R, t], [0, 1]]``."""
+        S = np.eye(4)
+        S[:3, :3] = self.scale * self.R
+        S[:3, 3] = self.t
+        return S
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Map points ``(N, 3)`` with ``y = c R x + t``."""
+        points = np.asarray(points, dtype=np.float64)
+        return self.scale * points @ self.R.T + self.t
+
+    @staticmethod
+    def identity() -> "Alignment":
+        """The transform that leaves every point where it is."""
+        return Alignment(np.eye(3), np.zeros(3), 1.0)
+
+
+def _check_pair(x: np.ndarray, y: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise AlignmentError(f"{name}: source points must be (N, 3), got {x.shape}")
+    if y.shape != x.shape:
+        raise AlignmentError(f"{name}: source {x.shape} and target {y.shape} points differ in shape")
+    if len(x) < 3:
+        raise AlignmentError(f"{name}: need at least 3 point pairs, got {len(x)}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise AlignmentError(f"{name}: points contain NaN or inf")
+    return x, y
+
+
+def umeyama_alignment(x: np.ndarray, y: np.ndarray, with_scale: bool = False) -> Alignment:
+    """Least-squares similarity (or rigid) transform taking ``x`` onto ``y`` (Umeyama 1991).
+
+    Parameters
+    ----------
+    x : ``(N, 3)`` source points, e.g. estimated camera centres (map units).
+    y : ``(N, 3)`` target points, e.g. ground-truth camera centres (metres), ``y[i] <-> x[i]``.
+    with_scale : estimate the scale ``c`` (Sim(3), eq. 42); otherwise ``c = 1`` (SE(3)).
+
+    Returns
+    -------
+    Alignment
+        ``R, t, scale`` minimising ``mean ||y_i - (c R x_i + t)||^2``.
+
+    Raises
+    ------
+    AlignmentError
+        Shapes differ, fewer than 3 pairs, or the points are degenerate (all on one line or
+        one point, so the rotation is not determined: rank of ``Sigma_xy`` below 2).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> a = umeyama_alignment(x, 2.0 * x + [1, 2, 3], with_scale=True)
+    >>> round(a.scale, 6), np.round(a.t, 6).tolist()
+    (2.0, [1.0, 2.0, 3.0])
+    """
+    x, y = _check_pair(x, y, "umeyama_alignment")
+    mu_x = x.mean(axis=0)  # eq. 34
+    mu_y = y.mean(axis=0)  # eq. 35
+    xc = x - mu_x
+    yc = y - mu_y
+    sigma2_x = float(np.mean(np.sum(xc * xc, axis=1)))  # eq. 36
+    cov = yc.T @ xc / len(x)  # eq. 38, Sigma_xy (3, 3)
+    U, d, Vt = np.linalg.svd(cov)
+    if np.count_nonzero(d > np.finfo(np.float64).eps * max(1.0, d[0])) < 2:
+        raise AlignmentError(
+            "umeyama_alignment: degenerate point sets (collinear or coincident): "
+            f"singular values of the cross-covariance {d.tolist()}"
+        )
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:  # eq. 43: reflection -> rotation
+        S[2, 2] = -1.0
+    R = U @ S @ Vt  # eq. 40
+    c = float(np.sum(d * np.diag(S)) / sigma2_x) if with_scale else 1.0  # eq. 42
+    t = mu_y - c * R @ mu_x  # eq. 41
+    return Alignment(R, t, c)
+
+
+def horn_alignment(x: np.ndarray, y: np.ndarray, with_scale: bool = False) -> Alignment:
+    """Least-squares similarity transform by Horn's unit-quaternion method (Horn 1987).
+
+    Same problem and conventions as :func:`umeyama_alignment`; an independent solver used
+    to cross-check it. With ``M = sum_i (x_i - mu_x)(y_i - mu_y)^T`` (entries ``S_ab``), the
+    optimal rotation is the unit quaternion of the largest eigenvalue of the symmetric
+    matrix (Horn 1987, Section 4)::
+
+        N = [[Sxx+Syy+Szz, Syz-Szy,      Szx-Sxz,      Sxy-Syx     ],
+             [Syz-Szy,     Sxx-Syy-Szz,  Sxy+Syx,      Szx+Sxz     ],
+             [Szx-Sxz,     Sxy+Syx,     -Sxx+Syy-Szz,  Syz+Szy     ],
+             [Sxy-Syx,     Szx+Sxz,      Syz+Szy,     -Sxx-Syy+Szz ]]
+
+    whose eigenvector is ``(w, x, y, z)``.
+
+    Parameters
+    ----------
+    x, y : ``(N, 3)`` corresponding source and target points.
+    with_scale : estimate the scale as ``sum_i (y_i - mu_y) . R (x_i - mu_x) / sum_i |x_i - mu_x|^2``,
+        which equals Umeyama's eq. 42.
+
+    Returns
+    -------
+    Alignment
+    """
+    x, y = _check_pair(x, y, "horn_alignment")
+    mu_x = x.mean(axis=0)
+    mu_y = y.mean(axis=0)
+    xc = x - mu_x
+    yc = y - mu_y
+    M = xc.T @ yc  # M[a, b] = S_ab = sum x_a y_b
+    (Sxx, Sxy, Sxz), (Syx, Syy, Syz), (Szx, Szy, Szz) = M
+    N = np.array(
+        [
+            [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+            [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+            [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+            [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
+        ]
+    )
+    sv = np.linalg.svd(M, compute_uv=False)
+    if np.count_nonzero(sv > np.finfo(np.float64).eps * max(1.0, sv[0])) < 2:
+        raise AlignmentError(
+            f"horn_alignment: degenerate point sets (collinear or coincident): singular values {sv.tolist()}"
+        )
+    evals, evecs = np.linalg.eigh(N)
+    w, qx, qy, qz = evecs[:, np.argmax(evals)]
+    R = quat_xyzw_to_matrix(np.array([qx, qy, qz, w]))
+    if with_scale:
+        c = float(np.sum(yc * (xc @ R.T)) / np.sum(xc * xc))
+    else:
+        c = 1.0
+    t = mu_y - c * R @ mu_x
+    return Alignment(R, t, c)

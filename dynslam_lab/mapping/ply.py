@@ -1,0 +1,176 @@
+"""PLY point clouds: write and read coloured points in the Stanford polygon format.
+
+A PLY file is a text header followed by the element data (Turk, "The PLY Polygon File
+Format", 1994; http://paulbourke.net/dataformats/ply/)::
+
+    ply
+    format binary_little_endian 1.0
+    comment written by dynslam_lab
+    element vertex N
+    property float x
+    property float y
+    property float z
+    property uchar red
+    property uchar green
+    property uchar blue
+    end_header
+    <N records of 3 float32 + 3 uint8, little-endian>
+
+Every viewer (MeshLab, CloudCompare, Open3D, trimesh, Blender) reads this vertex-only
+layout. :func:`write_ply` writes it (binary by default, ASCII on request);
+:func:`read_ply` reads back both encodings, float or double coordinates, with or without
+colour, and any extra vertex properties (ignored).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_ply", "read_ply", "PlyError"]
+
+# PLY scalar type names -> numpy dtypes (both the classic and the sized spellings).
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+
+
+class PlyError(ValueError):
+    """A PLY file is malformed or lacks the vertex coordinates; the message names the file."""
+
+
+def write_ply(
+    path: str | Path,
+    xyz: np.ndarray,
+    rgb: np.ndarray | None = None,
+    binary: bool = True,
+    comment: str | None = None,
+) -> Path:
+    """Write points (and colours) as a vertex-only PLY file.
+
+    Parameters
+    ----------
+    path : output file; its folder must exist.
+    xyz : ``(N, 3)`` point coordinates (metres), written as float32.
+    rgb : ``(N, 3)`` uint8 colours (RGB order), or None for no colour.
+    binary : binary little-endian (default, ~15 bytes per point) or ASCII.
+    comment : an optional one-line comment for the header.
+
+    Returns
+    -------
+    Path of the written file.
+    """
+    path = Path(path)
+    xyz = np.asarray(xyz)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"write_ply({path}): xyz must have shape (N, 3), got {xyz.shape}")
+    if not np.isfinite(xyz).all():
+        raise ValueError(f"write_ply({path}): xyz holds {int((~np.isfinite(xyz)).any(axis=1).sum())} non-finite points")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if rgb is not None:
+        rgb = np.asarray(rgb)
+        if rgb.shape != xyz.shape:
+            raise ValueError(f"write_ply({path}): rgb must have shape {xyz.shape} like xyz, got {rgb.shape}")
+        if rgb.dtype != np.uint8:
+            raise ValueError(f"write_ply({path}): rgb must be uint8 (0..255), got {rgb.dtype}")
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    records = np.empty(len(xyz), dtype=fields)
+    records["x"], records["y"], records["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    if rgb is not None:
+        records["red"], records["green"], records["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+
+    header = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0"]
+    if comment:
+        header.append("comment " + " ".join(str(comment).split()))
+    header.append(f"element vertex {len(xyz)}")
+    header += [f"property float {c}" for c in "xyz"]
+    if rgb is not None:
+        header += [f"property uchar {c}" for c in ("red", "green", "blue")]
+    header.append("end_header")
+    with path.open("wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        if binary:
+            fh.write(records.tobytes())
+        else:
+            fmt = "%.7g %.7g %.7g" + (" %d %d %d" if rgb is not None else "")
+            cols = [xyz.astype(np.float32).astype(np.float64)] + ([rgb.astype(np.int64)] if rgb is not None else [])
+            np.savetxt(fh, np.hstack(cols), fmt=fmt)
+    return path
+
+
+def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read the vertices of a PLY file.
+
+    Parameters
+    ----------
+    path : a PLY file (ASCII, binary little- or big-endian) whose first element is
+        ``vertex`` with ``x y z`` properties; other elements after it (faces) are ignored.
+
+    Returns
+    -------
+    xyz : ``(N, 3)`` float64 coordinates.
+    rgb : ``(N, 3)`` uint8 colours, or None when the file has no ``red green blue``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PlyError(f"{path}: PLY file not found")
+    with path.open("rb") as fh:
+        magic = fh.readline().strip()
+        if magic != b"ply":
+            raise PlyError(f"{path}: not a PLY file (first line {magic[:20]!r}, expected b'ply')")
+        fmt = None
+        n_vertex = None
+        props: list[tuple[str, str]] = []
+        current = None
+        while True:
+            line = fh.readline()
+            if not line:
+                raise PlyError(f"{path}: header has no end_header line")
+            words = line.decode("ascii", errors="replace").split()
+            if not words or words[0] in ("comment", "obj_info"):
+                continue
+            if words[0] == "end_header":
+                break
+            if words[0] == "format":
+                fmt = words[1]
+            elif words[0] == "element":
+                current = words[1]
+                if current == "vertex":
+                    n_vertex = int(words[2])
+                elif n_vertex is None:
+                    raise PlyError(f"{path}: element {current!r} comes before 'vertex' (not supported)")
+            elif words[0] == "property" and current == "vertex":
+                if words[1] == "list":
+                    raise PlyError(f"{path}: list properties in the vertex element are not supported")
+                if words[1] not in _PLY_TYPES:
+                    raise PlyError(f"{path}: unknown PLY type {words[1]!r}")
+                props.append((words[2], _PLY_TYPES[words[1]]))
+        if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+            raise PlyError(f"{path}: unknown PLY format {fmt!r}")
+        if n_vertex is None:
+            raise PlyError(f"{path}: no 'element vertex' in the header")
+        names = [p[0] for p in props]
+        if not {"x", "y", "z"} <= set(names):
+            raise PlyError(f"{path}: vertex element lacks x, y, z properties (has {names})")
+        if fmt == "ascii":
+            data = np.loadtxt(fh, dtype=np.float64, max_rows=n_vertex, ndmin=2)
+            if n_vertex and data.shape != (n_vertex, len(props)):
+                raise PlyError(f"{path}: expected {n_vertex} vertex rows of {len(props)} values, got {data.shape}")
+            col = {n: data[:, i] if n_vertex else np.zeros(0) for i, n in enumerate(names)}
+        else:
+            order = "<" if fmt == "binary_little_endian" else ">"
+            dtype = np.dtype([(n, order + t) for n, t in props])
+            raw = fh.read(dtype.itemsize * n_vertex)
+            if len(raw) != dtype.itemsize * n_vertex:
+                raise PlyError(f"{path}: truncated: {n_vertex} vertices need {dtype.itemsize * n_vertex} bytes, got {len(raw)}")
+            rec = np.frombuffer(raw, dtype=dtype)
+            col = {n: rec[n] for n in names}
+    xyz = np.stack([col["x"], col["y"], col["z"]], axis=1).astype(np.float64)
+    rgb = None
+    if {"red", "green", "blue"} <= set(names):
+        rgb = np.stack([col["red"], col["green"], col["blue"]], axis=1).astype(np.uint8)
+    return xyz, rgb

@@ -1,0 +1,278 @@
+"""The RGB-D SLAM system: one call per frame, all stages in order
+(ORB-SLAM2, Mur-Artal and Tardos, T-RO 2017, Fig. 1, run in a single thread).
+
+Per frame::
+
+    ORB extraction -> detector.detect(frame) -> screener.screen(frame, uv, detections)
+      -> tracking with the static keypoints only -> keyframe decision
+      -> local mapping (new points, fusion, culling, local BA) for a new keyframe
+      -> loop_closer.on_keyframe(keyframe, map) for a new keyframe
+
+Map initialisation (ORB-SLAM2 ``StereoInitialization``): the first frame with at least
+``init_min_points`` static keypoints with depth becomes keyframe 0 at the world origin and every
+such keypoint a map point.
+
+Every tracked frame's pose is stored relative to its reference keyframe, ``T_ref_c``, so that
+keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_w_ref T_ref_c``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..datasets.frame import Frame
+from ..evaluation.trajectory import Trajectory
+from ..features.orb import Features, extract_features
+from ..geometry.se3 import se3_inv, transform_points
+from .frame import KeyFrame, SlamFrame, make_slam_frame
+from .local_mapping import LocalMapper, create_points_from_depth
+from .map import Map
+from .tracking import Tracker, TrackState
+
+__all__ = ["System", "FrameResult"]
+
+
+@dataclass
+class FrameResult:
+    """What :meth:`System.process` tells about one frame.
+
+    Attributes
+    ----------
+    index, timestamp : the frame.
+    state : tracking state after the frame (``TrackState``: ``ok``, ``relocalized``, ``lost``,
+        ``not_initialized``).
+    T_w_c : ``(4, 4)`` pose, or None when not tracked.
+    is_keyframe : a keyframe was made from this frame (``keyframe_id``, else -1).
+    method : how the pose was found (``motion_model``, ``reference_keyframe``,
+        ``relocalization``, ``initialization`` or ``""``).
+    n_features, n_dynamic, n_inliers : keypoints, keypoints judged dynamic, pose inliers.
+    timings_ms : per stage milliseconds (``orb``, ``detect``, ``screen``, ``track``,
+        ``local_mapping``, ``loop``, ``total``).
+    uv : ``(N, 2)`` keypoints; dynamic : ``(N,)`` bool verdict used.
+    table : the screener's keypoint table (or None); region_mask : ``(H, W)`` bool or None.
+    dynamic_xyz : ``(D, 3)`` world points of dynamic keypoints with depth (tracked frames only).
+    loop : the loop closer's result for this frame's keyframe, or None.
+    error : message when a stage failed without losing the frame (the loop closer).
+    local_mapping : statistics of local mapping for a new keyframe (``fused``, ``ba_points``,
+        ``ba_outliers``, ``ba_cost_before``/``after``, ``culled_keyframes``).
+    """
+
+    index: int
+    timestamp: float
+    state: str
+    T_w_c: np.ndarray | None
+    is_keyframe: bool = False
+    keyframe_id: int = -1
+    method: str = ""
+    n_features: int = 0
+    n_dynamic: int = 0
+    n_inliers: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    uv: np.ndarray | None = None
+    dynamic: np.ndarray | None = None
+    table: Any = None
+    region_mask: np.ndarray | None = None
+    dynamic_xyz: np.ndarray | None = None
+    loop: Any = None
+    error: str = ""
+    local_mapping: dict = field(default_factory=dict)
+
+    @property
+    def tracked(self) -> bool:
+        return self.T_w_c is not None
+
+
+class System:
+    """ORB-SLAM2-style RGB-D SLAM, single-threaded.
+
+    Parameters
+    ----------
+    camera : intrinsics of the sequence.
+    config : the root :class:`dynslam_lab.config.Config` (uses ``orb``, ``tracking``,
+        ``local_mapping``).
+    detector : object with ``detect(frame) -> Detections``, or None.
+    screener : object with ``screen(frame, uv, detections) -> table`` (``.dynamic (N,)`` bool,
+        ``.region_mask``), or None (all keypoints static).
+    loop_closer : object with ``on_keyframe(keyframe, map) -> result | None``, or None.
+    """
+
+    def __init__(self, camera: PinholeCamera, config=None, detector=None, screener=None, loop_closer=None) -> None:
+        if config is None:
+            from ..config import Config
+
+            config = Config()
+        self.camera = camera
+        self.config = config
+        self.detector = detector
+        self.screener = screener
+        self.loop_closer = loop_closer
+        orb = config.orb
+        self.map = Map(orb.scale_factor, orb.n_levels)
+        self.tracker = Tracker(camera, self.map, config.tracking, orb.scale_factor)
+        tc = config.tracking
+        self.close_depth = tc.th_depth * tc.bf / camera.fx
+        self.mapper = LocalMapper(self.map, camera, config.local_mapping, tc.bf, self.close_depth, orb.scale_factor)
+        # Per tracked frame: (timestamp, reference keyframe id, T_ref_c).
+        self._anchors: list[tuple[float, int, np.ndarray]] = []
+        self.lost_frames: list[int] = []
+        self.loop_results: list[Any] = []
+        self.loop_edges: list[tuple[int, int]] = []
+
+    # --------------------------------------------------------------- helpers
+    def _screen(self, frame: Frame, feats: Features, t: dict) -> tuple[np.ndarray, Any, Any]:
+        detections = None
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            detections = self.detector.detect(frame)
+            t["detect"] = 1e3 * (time.perf_counter() - t0)
+        dynamic = np.zeros(len(feats), bool)
+        table = None
+        if self.screener is not None:
+            t0 = time.perf_counter()
+            table = self.screener.screen(frame, feats.uv, detections)
+            t["screen"] = 1e3 * (time.perf_counter() - t0)
+            dynamic = np.asarray(table.dynamic, bool).reshape(-1)
+            if len(dynamic) != len(feats):
+                raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
+        return dynamic, table, detections
+
+    def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False) -> tuple[KeyFrame, np.ndarray]:
+        """Insert a keyframe made from ``sf`` with new points from depth (all of them at the
+        initialisation, as ORB-SLAM2's ``StereoInitialization``; else close ones first)."""
+        thumb = cv2.resize(frame.rgb, (160, 120), interpolation=cv2.INTER_AREA)
+        kf = KeyFrame.from_frame(self.map.new_keyframe_id(), sf, thumbnail=thumb)
+        self.map.add_keyframe(kf)
+        close = np.inf if all_points else self.close_depth
+        new = create_points_from_depth(self.map, kf, close, self.config.tracking.kf_new_points_min, frame.rgb)
+        sf.map_point_ids = kf.map_point_ids.copy()
+        sf.outlier[:] = False
+        self.tracker.ref_kf = kf
+        self.tracker.last_kf_frame = sf.index
+        return kf, new
+
+    def _initialize(self, sf: SlamFrame, frame: Frame) -> bool:
+        n = int((sf.static & np.isfinite(sf.depth)).sum())
+        if n < self.config.tracking.init_min_points:
+            return False
+        sf.T_w_c = np.eye(4)
+        self._new_keyframe(sf, frame, all_points=True)
+        self.tracker.last = sf
+        self.tracker.state = TrackState.OK
+        self.tracker.velocity = None
+        return True
+
+    # ------------------------------------------------------------------ main
+    def process(self, frame: Frame) -> FrameResult:
+        """Track one RGB-D frame; returns its :class:`FrameResult`."""
+        t: dict[str, float] = {"orb": 0.0, "detect": 0.0, "screen": 0.0, "track": 0.0, "local_mapping": 0.0, "loop": 0.0}
+        t_start = time.perf_counter()
+        t0 = time.perf_counter()
+        feats = extract_features(frame.gray, self.config.orb)
+        t["orb"] = 1e3 * (time.perf_counter() - t0)
+        dynamic, table, _ = self._screen(frame, feats, t)
+        tc = self.config.tracking
+        sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
+        res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
+                          n_dynamic=int(dynamic.sum()), uv=feats.uv, dynamic=dynamic, table=table,
+                          region_mask=getattr(table, "region_mask", None))
+        t0 = time.perf_counter()
+        kf = None
+        new_pts = np.zeros(0, np.int64)
+        if self.tracker.state == TrackState.NOT_INITIALIZED:
+            if self._initialize(sf, frame):
+                res.method = "initialization"
+                kf = self.tracker.ref_kf
+                res.state = TrackState.OK
+            else:
+                res.state = TrackState.NOT_INITIALIZED
+        else:
+            res.state = self.tracker.track(sf)
+            res.method = self.tracker.method
+            res.n_inliers = self.tracker.n_inliers
+            if sf.T_w_c is not None and self.tracker.need_keyframe(sf):
+                kf, new_pts = self._new_keyframe(sf, frame)
+        t["track"] = 1e3 * (time.perf_counter() - t0)
+        if kf is not None and res.method != "initialization":
+            t0 = time.perf_counter()
+            res.local_mapping = self.mapper.process(kf, new_pts)
+            t["local_mapping"] = 1e3 * (time.perf_counter() - t0)
+        if kf is not None:
+            res.is_keyframe, res.keyframe_id = True, kf.id
+            if self.loop_closer is not None:
+                t0 = time.perf_counter()
+                T_ref_c = kf.T_c_w @ sf.T_w_c if sf.T_w_c is not None else None
+                try:
+                    loop = self.loop_closer.on_keyframe(kf, self.map)
+                except Exception as exc:  # the tracked pose must not be lost with it
+                    loop = None
+                    res.error = f"loop closing failed: {type(exc).__name__}: {exc}"
+                self.map.invalidate()
+                t["loop"] = 1e3 * (time.perf_counter() - t0)
+                if loop is not None:
+                    res.loop = loop
+                    self.loop_results.append(loop)
+                    ids = [int(i) for i in np.asarray(getattr(loop, "keyframe_ids", ()), dtype=np.int64).reshape(-1)]
+                    if len(ids) >= 2:
+                        self.loop_edges.append((ids[0], ids[1]))
+                    if T_ref_c is not None and kf.id in self.map.keyframes:
+                        # Re-anchor the current frame on its corrected keyframe.
+                        sf.T_w_c = self.map.keyframes[kf.id].T_w_c @ T_ref_c
+        if sf.T_w_c is not None:
+            ref = self.tracker.ref_kf
+            ref_id = ref.id if ref is not None else kf.id
+            T_w_ref = self.map.keyframe_pose(ref_id)
+            self._anchors.append((float(frame.timestamp), ref_id, se3_inv(T_w_ref) @ sf.T_w_c))
+            res.T_w_c = sf.T_w_c.copy()
+            if dynamic.any():
+                dz = sf.points_c[dynamic]
+                dz = dz[np.isfinite(dz).all(axis=1)]
+                res.dynamic_xyz = transform_points(sf.T_w_c, dz) if len(dz) else np.zeros((0, 3))
+        else:  # lost, or not initialised yet (too few keypoints with depth): no pose
+            self.lost_frames.append(frame.index)
+        t["total"] = 1e3 * (time.perf_counter() - t_start)
+        res.timings_ms = t
+        return res
+
+    def mark_lost(self, index: int) -> None:
+        """Record a frame that could not be processed at all (unreadable image)."""
+        self.lost_frames.append(int(index))
+
+    # --------------------------------------------------------------- outputs
+    def trajectory(self) -> Trajectory:
+        """Every tracked frame, ``T_w_c = T_w_ref T_ref_c`` with the current keyframe poses."""
+        if not self._anchors:
+            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+        ts = np.array([a[0] for a in self._anchors])
+        cache: dict[int, np.ndarray] = {}
+        poses = []
+        for _, ref, T_ref_c in self._anchors:  # one matrix product per frame
+            if ref not in cache:
+                cache[ref] = self.map.keyframe_pose(ref)
+            poses.append(cache[ref] @ T_ref_c)
+        return Trajectory(ts, np.stack(poses))
+
+    def keyframe_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays of ``keyframes.npz``: ids, frame_index, timestamps, poses, loop_edges."""
+        kfs = [self.map.keyframes[k] for k in sorted(self.map.keyframes)]
+        edges = set(self.loop_edges)
+        for kf in kfs:
+            for o in kf.loop_edges:
+                edges.add((min(kf.id, o), max(kf.id, o)))
+        return {
+            "ids": np.array([k.id for k in kfs], np.int64),
+            "frame_index": np.array([k.frame_index for k in kfs], np.int64),
+            "timestamps": np.array([k.timestamp for k in kfs], np.float64),
+            "poses": np.stack([k.T_w_c for k in kfs]) if kfs else np.zeros((0, 4, 4)),
+            "loop_edges": np.array(sorted(edges), np.int64).reshape(-1, 2),
+        }
+
+    def map_point_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays of ``map_points.npz``: xyz, rgb, n_obs of the alive points."""
+        ids = self.map.point_ids()
+        return {"xyz": self.map.xyz[ids].copy(), "rgb": self.map.rgb[ids].copy(), "n_obs": self.map.n_obs(ids)}

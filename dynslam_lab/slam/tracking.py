@@ -1,0 +1,388 @@
+"""Tracking: the camera pose of each frame against the map
+(ORB-SLAM, Mur-Artal et al., T-RO 2015, Sec. V; ORB-SLAM2, T-RO 2017, Sec. III-A/B).
+
+For each new frame, with only the keypoints the screening stage judged static:
+
+1. **Motion model** (Sec. V-B): predict ``T_c_w = V T_c_w^{last}`` with the constant velocity
+   ``V = T_c_w^{last} (T_c_w^{before last})^{-1}``; project the map points matched in the last
+   frame and search each within ``r = th * scale_factor**octave`` pixels (``th = 15`` for RGB-D),
+   on the keypoint's pyramid level +-1, Hamming distance <= 100, orientation consistent;
+   doubling the radius once if fewer than 20 matches.
+2. **Reference keyframe** fallback: match the descriptors of the frame to those of the
+   reference keyframe's map points (ratio 0.7; ORB-SLAM2 uses its bag of words here) and
+   estimate the pose by **PnP-RANSAC** (``cv2.solvePnPRansac``).
+3. **Pose-only refinement** (motion-only BA, eq. 2 of ORB-SLAM2, in :mod:`.optimize`) with a
+   Huber loss and chi^2 outlier rejection.
+4. **Track the local map** (Sec. V-D): the local keyframes are those sharing points with the
+   frame plus their best covisible neighbours; their map points that fall in the frustum
+   (in the image, at distance within the scale-invariance range ``[0.8 d_min, 1.2 d_max]``,
+   viewing angle to the mean direction below 60 deg) are searched by projection with
+   ``r = th * (2.5 or 4) * scale_factor**level`` (``th = 3`` for RGB-D), then the pose is refined
+   again. Tracking succeeds with at least 30 inliers (50 just after relocalisation).
+5. **Keyframe decision** (Sec. V-E and ORB-SLAM2 ``NeedNewKeyFrame``): a new keyframe when the
+   frame tracks fewer than 60 % of the points of the reference keyframe (ORB-SLAM2: 75 % of those
+   seen by two keyframes; without triangulation between keyframes our points are seen by fewer
+   keyframes, and that count made keyframes come too late on a turning camera: synthetic ``loop``
+   ATE 7.6 cm, with ours 0.9 cm), or fewer than 100 close
+   points are tracked while more than 70 close points could be created, with more than 15
+   inliers, and at least ``kf_min_frames`` frames after the last keyframe (always after
+   ``kf_max_frames``).
+6. **Relocalisation** when lost (Sec. V-C): descriptor matching against candidate keyframes,
+   PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
+
+Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
+into map points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..features.matching import TH_HIGH, TH_LOW, match_descriptors, orientation_consistent, search_by_projection
+from ..geometry.se3 import se3_inv, transform_points
+from .frame import KeyFrame, SlamFrame
+from .map import Map
+from .optimize import Observations, nearest_rotation, optimize_pose
+
+__all__ = ["TrackingConfig", "Tracker", "TrackState", "pnp_ransac", "frustum_candidates"]
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Parameters of tracking (ORB-SLAM2 ``Tracking.cc`` / TUM settings unless noted)."""
+
+    bf: float = 40.0  # virtual stereo baseline x fx (px*m) for the u_R residual; ORB-SLAM2 TUM Camera.bf: 40
+    th_depth: float = 40.0  # close points: depth < th_depth * bf / fx (m); ORB-SLAM2 ThDepth: 40
+    min_depth: float = 0.1  # keypoint depths below this are missing (m); ours (sensor minimum)
+    max_depth: float = 8.0  # keypoint depths above this are missing (m); ours (Kinect range)
+    init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
+    motion_radius: float = 15.0  # motion-model search radius at level 0 (px); ORB-SLAM2 RGB-D th: 15
+    motion_min_matches: int = 20  # matches needed before optimising (else radius x2); ORB-SLAM2: 20
+    min_track_inliers: int = 10  # inliers for motion-model / reference tracking; ORB-SLAM2: 10
+    ref_ratio: float = 0.7  # ratio test for reference keyframe matching; ORB-SLAM2 SearchByBoW: 0.7
+    local_radius: float = 3.0  # local map search factor th (px); ORB-SLAM2 RGB-D: 3 (5 after relocalisation)
+    local_ratio: float = 0.8  # ratio test in local map search; ORB-SLAM2 SearchLocalPoints: 0.8
+    local_max_keyframes: int = 80  # local keyframes at most; ORB-SLAM2: 80
+    local_neighbours: int = 10  # best covisible neighbours added per local keyframe; ORB-SLAM2: 10
+    view_cos: float = 0.5  # minimum cos of viewing angle to a point's mean direction; ORB-SLAM2: 0.5 (60 deg)
+    min_local_inliers: int = 30  # inliers after local map tracking; ORB-SLAM2: 30
+    min_local_inliers_reloc: int = 50  # same, within kf_max_frames of a relocalisation; ORB-SLAM2: 50
+    pnp_reproj_px: float = 4.0  # PnP-RANSAC inlier threshold (px); ours (ORB-SLAM2: chi^2 5.991 -> 2.45 sigma)
+    pnp_iterations: int = 200  # PnP-RANSAC iterations; ours
+    pnp_min_inliers: int = 10  # PnP-RANSAC inliers to accept a pose; ORB-SLAM2 PnPsolver: 10
+    reloc_ratio: float = 0.75  # ratio test in relocalisation matching; ORB-SLAM2: 0.75
+    reloc_min_matches: int = 15  # matches to try a candidate keyframe; ORB-SLAM2: 15
+    reloc_candidates: int = 20  # keyframes tried per relocalisation (most recent and evenly spaced); ours
+    kf_min_frames: int = 0  # frames between keyframes at least; ORB-SLAM2 mMinFrames: 0
+    kf_max_frames: int = 30  # a keyframe at the latest after this many frames; ORB-SLAM2 mMaxFrames: fps (30)
+    kf_ref_ratio: float = 0.6  # tracked / reference keyframe points below this -> keyframe; ours, ORB-SLAM2 RGB-D: 0.75 (see kf_ref_min_obs)
+    kf_ref_min_obs: int = 1  # reference points counted: seen by this many keyframes; ours, ORB-SLAM2: 3 RGB-D obs (= 2)
+    kf_min_inliers: int = 15  # a keyframe needs more inliers than this; ORB-SLAM2: 15
+    kf_close_tracked: int = 100  # fewer tracked close points than this ...; ORB-SLAM2: 100
+    kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
+    kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
+
+
+class TrackState:
+    """Tracking states (strings, for files and plots)."""
+
+    NOT_INITIALIZED = "not_initialized"
+    OK = "ok"
+    RELOCALIZED = "relocalized"
+    LOST = "lost"
+
+
+def pnp_ransac(
+    X_w: np.ndarray, uv: np.ndarray, camera: PinholeCamera, reproj_px: float, iterations: int, seed: int = 0
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Pose from 3D-2D matches with ``cv2.solvePnPRansac`` (EPnP minimal sets).
+
+    Returns ``(T_c_w (4, 4) or None, inlier (K,) bool)``.
+    """
+    X_w = np.asarray(X_w, np.float64).reshape(-1, 3)
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    inl = np.zeros(len(X_w), bool)
+    if len(X_w) < 6:
+        return None, inl
+    cv2.setRNGSeed(int(seed))
+    ok, rvec, tvec, idx = cv2.solvePnPRansac(
+        X_w, uv, camera.K, None, iterationsCount=int(iterations), reprojectionError=float(reproj_px),
+        confidence=0.99, flags=cv2.SOLVEPNP_EPNP,
+    )
+    if not ok or idx is None:
+        return None, inl
+    inl[idx.ravel()] = True
+    R, _ = cv2.Rodrigues(rvec)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, tvec.ravel()
+    return T, inl
+
+
+def frustum_candidates(
+    mp: Map, ids: np.ndarray, T_c_w: np.ndarray, camera: PinholeCamera, view_cos: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Map points ``ids`` that the camera ``T_c_w`` can see (ORB-SLAM ``isInFrustum``, vectorised).
+
+    Returns ``(kept ids, uv (K, 2), predicted level (K,), viewing cos (K,))``.
+    """
+    X = mp.xyz[ids]
+    X_c = transform_points(T_c_w, X)
+    uv, z = camera.project(X_c)
+    ok = (z > 0) & camera.in_image(uv)
+    C = se3_inv(T_c_w)[:3, 3]
+    ray = X - C
+    dist = np.linalg.norm(ray, axis=1)
+    ok &= (dist >= 0.8 * mp.min_dist[ids]) & (dist <= 1.2 * mp.max_dist[ids])
+    cos = np.einsum("ij,ij->i", ray, mp.normal[ids]) / np.maximum(dist, 1e-12)
+    ok &= cos >= view_cos
+    return ids[ok], uv[ok], mp.predict_level(ids[ok], dist[ok]), cos[ok]
+
+
+class Tracker:
+    """Tracking state of one run: last frame, velocity, reference keyframe, local map.
+
+    The map and keyframe creation are shared with :class:`~dynslam_lab.slam.system.System`,
+    which calls :meth:`track` per frame and :meth:`need_keyframe` afterwards.
+    """
+
+    def __init__(self, camera: PinholeCamera, mp: Map, cfg: TrackingConfig, scale_factor: float) -> None:
+        self.camera = camera
+        self.map = mp
+        self.cfg = cfg
+        self.scale_factor = float(scale_factor)
+        self.state = TrackState.NOT_INITIALIZED
+        self.last: SlamFrame | None = None
+        self.velocity: np.ndarray | None = None  # T_c_w(last) @ T_w_c(before last)
+        self.ref_kf: KeyFrame | None = None
+        self.last_kf_frame = -(10**9)
+        self.last_reloc_frame = -(10**9)
+        self.n_inliers = 0
+        self.local_kf_ids: list[int] = []
+        self.method = ""
+
+    # -------------------------------------------------------------- helpers
+    def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
+        return Observations.from_keypoints(frame.uv[idx], frame.depth[idx], frame.octave[idx], self.cfg.bf, self.scale_factor)
+
+    def _optimize(self, frame: SlamFrame, T_c_w: np.ndarray) -> int:
+        """Motion-only BA over the frame's matches; marks outliers; returns inlier count."""
+        idx = np.flatnonzero(frame.map_point_ids >= 0)
+        frame.outlier[:] = False
+        if len(idx) < 3:
+            frame.T_w_c = se3_inv(T_c_w)
+            return 0
+        T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf)
+        frame.T_w_c = se3_inv(T)
+        frame.outlier[idx[out]] = True
+        return int((~out).sum())
+
+    def _discard_outliers(self, frame: SlamFrame) -> None:
+        frame.map_point_ids[frame.outlier] = -1
+        frame.outlier[:] = False
+
+    def _available(self, frame: SlamFrame) -> np.ndarray:
+        return frame.static & (frame.map_point_ids < 0)
+
+    # --------------------------------------------------------------- stages
+    def track_motion_model(self, frame: SlamFrame) -> bool:
+        """Constant-velocity prediction, projection matching of the last frame's points, refinement."""
+        last = self.last
+        if last is None or self.velocity is None or last.T_w_c is None:
+            return False
+        T_pred = self.velocity @ se3_inv(last.T_w_c)
+        lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
+        pids = last.map_point_ids[lidx]
+        alive = self.map.alive[pids]
+        lidx, pids = lidx[alive], pids[alive]
+        if len(pids) < self.cfg.motion_min_matches:
+            return False
+        uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
+        vis = (z > 0) & self.camera.in_image(uv)
+        lidx, pids, uv = lidx[vis], pids[vis], uv[vis]
+        oct_last = last.octave[lidx]
+        frame.map_point_ids[:] = -1
+        for factor in (1.0, 2.0):
+            m = search_by_projection(
+                uv, self.map.descriptors[pids], factor * self.cfg.motion_radius * self.scale_factor**oct_last, oct_last,
+                frame.uv, frame.octave, frame.descriptors, kp_available=frame.static, max_distance=TH_HIGH,
+                ratio=1.0,
+            )
+            if len(m):
+                m = m.select(orientation_consistent(last.angle[lidx[m.idx_a]], frame.angle[m.idx_b]))
+            if len(m) >= self.cfg.motion_min_matches:
+                break
+        if len(m) < self.cfg.motion_min_matches:
+            return False
+        frame.map_point_ids[m.idx_b] = pids[m.idx_a]
+        n = self._optimize(frame, T_pred)
+        self._discard_outliers(frame)
+        return n >= self.cfg.min_track_inliers
+
+    def track_reference_keyframe(self, frame: SlamFrame) -> bool:
+        """Descriptor matching against the reference keyframe's map points, PnP-RANSAC, refinement."""
+        kf = self.ref_kf
+        if kf is None:
+            return False
+        return self._track_against_keyframe(frame, kf, self.cfg.ref_ratio, self.cfg.min_track_inliers)
+
+    def _track_against_keyframe(self, frame: SlamFrame, kf: KeyFrame, ratio: float, min_inliers: int) -> bool:
+        kidx = np.flatnonzero(kf.map_point_ids >= 0)
+        kidx = kidx[self.map.alive[kf.map_point_ids[kidx]]]
+        fidx = np.flatnonzero(frame.static)
+        if len(kidx) < self.cfg.reloc_min_matches or len(fidx) < self.cfg.reloc_min_matches:
+            return False
+        m = match_descriptors(
+            kf.descriptors[kidx], frame.descriptors[fidx], ratio=ratio, max_distance=TH_LOW,
+            angle_a=kf.angle[kidx], angle_b=frame.angle[fidx],
+        )
+        if len(m) < self.cfg.reloc_min_matches:
+            return False
+        pids = kf.map_point_ids[kidx[m.idx_a]]
+        fi = fidx[m.idx_b]
+        T, inl = pnp_ransac(self.map.xyz[pids], frame.uv[fi], self.camera, self.cfg.pnp_reproj_px, self.cfg.pnp_iterations, seed=frame.index)
+        if T is None or inl.sum() < self.cfg.pnp_min_inliers:
+            return False
+        frame.map_point_ids[:] = -1
+        frame.map_point_ids[fi[inl]] = pids[inl]
+        n = self._optimize(frame, T)
+        self._discard_outliers(frame)
+        return n >= min_inliers
+
+    def update_local_map(self, frame: SlamFrame) -> np.ndarray:
+        """Local keyframes (sharing points with the frame, plus neighbours) and their points."""
+        mp = self.map
+        ids = frame.map_point_ids[frame.map_point_ids >= 0]
+        counts = mp.keyframes_observing(ids) if len(ids) else {}
+        local = sorted(counts, key=lambda k: (-counts[k], k))[: self.cfg.local_max_keyframes]
+        if not local and self.ref_kf is not None and self.ref_kf.id in mp.keyframes:
+            local = [self.ref_kf.id]
+        chosen = list(local)
+        seen = set(chosen)
+        for k in local:
+            if len(chosen) >= self.cfg.local_max_keyframes:
+                break
+            for nb in mp.best_covisibles(k, self.cfg.local_neighbours):
+                if nb not in seen:
+                    seen.add(nb)
+                    chosen.append(nb)
+                    break
+        if counts:
+            best = local[0]
+            self.ref_kf = mp.keyframes[best]
+        self.local_kf_ids = chosen
+        if not chosen:
+            return np.zeros(0, np.int64)
+        pts = np.concatenate([mp.keyframes[k].map_point_ids for k in chosen])
+        pts = np.unique(pts[pts >= 0])
+        return pts[mp.alive[pts]]
+
+    def track_local_map(self, frame: SlamFrame) -> int:
+        """Project the local map into the frame, search, refine; returns the inlier count."""
+        mp = self.map
+        local_pts = self.update_local_map(frame)
+        matched = frame.map_point_ids[frame.map_point_ids >= 0]
+        mp.n_visible[matched] += 1
+        cand = np.setdiff1d(local_pts, matched, assume_unique=False)
+        T_c_w = se3_inv(frame.T_w_c)
+        ids, uv, lvl, cos = frustum_candidates(mp, cand, T_c_w, self.camera, self.cfg.view_cos)
+        mp.n_visible[ids] += 1
+        th = self.cfg.local_radius + (2.0 if frame.index - self.last_reloc_frame < 2 else 0.0)
+        radius = th * np.where(cos > 0.998, 2.5, 4.0) * self.scale_factor**lvl
+        m = search_by_projection(
+            uv, mp.descriptors[ids], radius, lvl, frame.uv, frame.octave, frame.descriptors,
+            kp_available=self._available(frame), max_distance=TH_HIGH, ratio=self.cfg.local_ratio,
+        )
+        frame.map_point_ids[m.idx_b] = ids[m.idx_a]
+        n = self._optimize(frame, T_c_w)
+        inl = frame.matched()
+        mp.n_found[frame.map_point_ids[inl]] += 1
+        self._discard_outliers(frame)
+        return n
+
+    def relocalize(self, frame: SlamFrame) -> bool:
+        """Try candidate keyframes (recent ones first, then evenly spaced ones)."""
+        kfs = sorted(self.map.keyframes)
+        if not kfs:
+            return False
+        n = self.cfg.reloc_candidates
+        recent = kfs[-(n // 2) :]
+        spread = [kfs[i] for i in np.linspace(0, len(kfs) - 1, n - len(recent)).astype(int)] if len(kfs) > len(recent) else []
+        cands = list(dict.fromkeys(recent[::-1] + spread))
+        for kid in cands:
+            if self._track_against_keyframe(frame, self.map.keyframes[kid], self.cfg.reloc_ratio, self.cfg.pnp_min_inliers):
+                self.ref_kf = self.map.keyframes[kid]
+                if self.track_local_map(frame) >= self.cfg.min_local_inliers_reloc:
+                    self.last_reloc_frame = frame.index
+                    return True
+            frame.map_point_ids[:] = -1
+            frame.T_w_c = None
+        return False
+
+    # ------------------------------------------------------------------ main
+    def track(self, frame: SlamFrame) -> str:
+        """Estimate ``frame.T_w_c`` (None when lost); returns the new state."""
+        cfg = self.cfg
+        ok = False
+        self.method = ""
+        if self.state in (TrackState.OK, TrackState.RELOCALIZED):
+            if self.velocity is not None and self.track_motion_model(frame):
+                ok, self.method = True, "motion_model"
+            else:
+                frame.map_point_ids[:] = -1
+                ok = self.track_reference_keyframe(frame)
+                self.method = "reference_keyframe" if ok else ""
+            if ok:
+                n = self.track_local_map(frame)
+                need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
+                ok = n >= need
+                self.n_inliers = n
+            state = TrackState.OK if ok else TrackState.LOST
+        else:
+            ok = self.relocalize(frame)
+            self.method = "relocalization" if ok else ""
+            self.n_inliers = int(frame.matched().sum()) if ok else 0
+            state = TrackState.RELOCALIZED if ok else TrackState.LOST
+        if ok:
+            if self.last is not None and self.last.T_w_c is not None and frame.index - self.last.index == 1:
+                V = se3_inv(frame.T_w_c) @ self.last.T_w_c
+                V[:3, :3] = nearest_rotation(V[:3, :3])
+                self.velocity = V
+            else:
+                self.velocity = None
+            self.last = frame
+        else:
+            frame.T_w_c = None
+            frame.map_point_ids[:] = -1
+            self.velocity = None
+        self.state = state
+        return state
+
+    def need_keyframe(self, frame: SlamFrame) -> bool:
+        """ORB-SLAM2 ``NeedNewKeyFrame`` for RGB-D with local mapping always idle."""
+        cfg = self.cfg
+        if frame.T_w_c is None or self.ref_kf is None:
+            return False
+        mp = self.map
+        n_kfs = len(mp.keyframes)
+        since = frame.index - self.last_kf_frame
+        if frame.index - self.last_reloc_frame < cfg.kf_max_frames and n_kfs > cfg.kf_max_frames:
+            return False
+        # ORB-SLAM2 counts an RGB-D observation twice (nMinObs 2 / 3 -> keyframes 1 / 2).
+        min_obs = 1 if n_kfs <= 2 else cfg.kf_ref_min_obs
+        ref_ids = self.ref_kf.map_point_ids[self.ref_kf.map_point_ids >= 0]
+        ref_ids = ref_ids[mp.alive[ref_ids]]
+        n_ref = int((mp.n_obs(ref_ids) >= min_obs).sum()) if len(ref_ids) else 0
+        close = frame.static & (frame.depth < cfg.th_depth * cfg.bf / self.camera.fx)
+        tracked_close = int((close & (frame.map_point_ids >= 0)).sum())
+        untracked_close = int((close & (frame.map_point_ids < 0)).sum())
+        need_close = tracked_close < cfg.kf_close_tracked and untracked_close > cfg.kf_close_untracked
+        ratio = 0.4 if n_kfs < 2 else cfg.kf_ref_ratio
+        n = self.n_inliers
+        c1 = since >= cfg.kf_max_frames or since >= cfg.kf_min_frames
+        c1c = n < 0.25 * n_ref or need_close
+        c2 = (n < ratio * n_ref or need_close) and n > cfg.kf_min_inliers
+        return bool((c1 or c1c) and c2)

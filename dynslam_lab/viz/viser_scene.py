@@ -1,0 +1,560 @@
+"""The 3D scene of a run in viser: trajectories, keyframes, sparse and dense maps, loops.
+
+What ``dynslam view OUTDIR`` shows and what a notebook embeds with :func:`show_inline`:
+
+* the estimated trajectory (red) and the ground truth (blue, aligned to the estimate with
+  Umeyama/Horn, so both share the estimate's world frame);
+* every keyframe as a wireframe frustum (orange), all of them in *one* line-segment set,
+  and image frustums with the keyframe thumbnails for up to ``max_image_frustums`` evenly
+  spaced keyframes;
+* the sparse map points (their colour, or green) and the keypoints judged dynamic (magenta);
+* the dense static map ``map.ply``;
+* loop edges between keyframe centres (green);
+* a playback slider stepping through the tracked frames: a white frustum at the frame's
+  pose, and the thumbnail of the newest keyframe at or before it.
+
+Everything goes to the browser in a few large messages (one point cloud per layer, one
+line-segment set per polyline family, the path thinned to ``max_path_points``), and the
+dense map, by far the largest layer, follows ``defer_dense`` seconds after the first browser
+connects, so the first picture does not wait for it (``benchmarks/view_startup.py``).
+
+Conventions: poses ``T_w_c`` map camera to world (OpenCV camera axes: x right, y down,
+z forward, which is also viser's frustum convention). Quaternions are ``x y z w`` in TUM
+files and ``w x y z`` in viser: :func:`wxyz_from_matrix` is the only conversion. The server
+binds to ``127.0.0.1`` unless a host is given on purpose (viser's default, ``0.0.0.0``,
+would expose the scene to the network).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..evaluation.trajectory import Trajectory, read_tum_trajectory
+from ..geometry.se3 import matrix_to_quat_xyzw
+
+__all__ = [
+    "SceneConfig",
+    "RunData",
+    "SceneHandles",
+    "load_run",
+    "wxyz_from_matrix",
+    "frustum_segments",
+    "polyline_segments",
+    "scene_bounds",
+    "initial_view",
+    "build_scene",
+    "start_viewer",
+    "play_loop",
+    "show_inline",
+    "free_port",
+    "COLORS",
+]
+
+#: RGB colours of the layers (uint8).
+COLORS = {
+    "estimate": (230, 40, 30),
+    "ground_truth": (30, 90, 230),
+    "keyframe": (255, 150, 0),
+    "current": (20, 20, 20),
+    "static": (60, 180, 75),
+    "dynamic": (220, 0, 220),
+    "loop": (0, 200, 0),
+}
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """What the viewer draws and how big (units: metres unless noted)."""
+
+    frustum_scale: float = 0.08  # metres from apex to image plane of keyframe frustums (ours)
+    trajectory_thickness: float = 3.0  # screen pixels of trajectory lines (ours)
+    point_size_sparse: float = 0.02  # metres (ours)
+    point_size_dense: float = 0.012  # metres (ours; ~ the dense map's 2 cm voxels)
+    max_dense_points: int = 1_000_000  # dense points sent at most, random subset with seed 0 (ours)
+    max_image_frustums: int = 40  # keyframes shown with their thumbnail at start-up (ours)
+    defer_dense: float = 1.0  # seconds after the first browser connects before the dense map is sent (0 = at once; ours)
+    max_path_points: int = 3000  # trajectory vertices drawn at most, evenly spaced (playback keeps all; ours)
+    fov_y: float = float(2 * np.arctan(240 / 525))  # radians, vertical field of view, 49 deg (Kinect, f = 525 px)
+    aspect: float = 4 / 3  # width / height of frustums (640 x 480)
+    gui: bool = True  # add the playback slider and layer toggles (False for a static notebook embed)
+
+
+@dataclass
+class RunData:
+    """Everything of a run folder the viewer draws (missing parts are None).
+
+    Attributes
+    ----------
+    outdir : the run folder.
+    trajectory : estimated trajectory (``trajectory.txt``).
+    ground_truth : ground truth aligned into the estimate's world frame, or None.
+    kf_ids, kf_frame_index, kf_poses, kf_timestamps : keyframes (``keyframes.npz``):
+        ``(K,)``, ``(K,)``, ``(K, 4, 4)`` ``T_w_c``, ``(K,)`` seconds (None when absent).
+    loop_edges : ``(L, 2)`` keyframe ids.
+    map_xyz, map_rgb : sparse map points ``(M, 3)`` metres, ``(M, 3)`` uint8 (``map_points.npz``).
+    dynamic_xyz : ``(D, 3)`` keypoints judged dynamic (``dynamic_points.npz``).
+    dense_xyz, dense_rgb : dense static map (``map.ply``).
+    thumbs : keyframe id -> thumbnail path (``thumbs/KFID.jpg``).
+    """
+
+    outdir: Path
+    trajectory: Trajectory | None = None
+    ground_truth: Trajectory | None = None
+    kf_ids: np.ndarray | None = None
+    kf_frame_index: np.ndarray | None = None
+    kf_poses: np.ndarray | None = None
+    kf_timestamps: np.ndarray | None = None
+    loop_edges: np.ndarray | None = None
+    map_xyz: np.ndarray | None = None
+    map_rgb: np.ndarray | None = None
+    dynamic_xyz: np.ndarray | None = None
+    dense_xyz: np.ndarray | None = None
+    dense_rgb: np.ndarray | None = None
+    thumbs: dict[int, Path] = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def n_keyframes(self) -> int:
+        return 0 if self.kf_ids is None else len(self.kf_ids)
+
+
+# ---------------------------------------------------------------------------- loading
+def _load_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+    if not path.is_file():
+        return None
+    with np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise ValueError(f"{path}: missing arrays {missing} (has {sorted(data)})")
+    return data
+
+
+def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = None) -> RunData:
+    """Read a ``dynslam run`` output folder (layout in ``docs/architecture.md``).
+
+    Parameters
+    ----------
+    outdir : the run folder; at least one of ``trajectory.txt``, ``keyframes.npz``,
+        ``map_points.npz``, ``map.ply`` must be there.
+    ground_truth : a TUM ground-truth file or :class:`Trajectory`; when None, the
+        ``groundtruth.txt`` of the sequence named in ``summary.json`` (key ``sequence``) or
+        ``OUTDIR/groundtruth.txt`` is used if present. It is aligned (SE(3), Umeyama) into the
+        estimate's frame.
+    """
+    from ..mapping.ply import read_ply
+
+    outdir = Path(outdir)
+    if not outdir.is_dir():
+        raise FileNotFoundError(f"{outdir}: run folder not found")
+    run = RunData(outdir=outdir)
+    summary_path = outdir / "summary.json"
+    if summary_path.is_file():
+        try:
+            run.summary = json.loads(summary_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{summary_path}: invalid JSON ({exc})") from exc
+    if (outdir / "trajectory.txt").is_file():
+        run.trajectory = read_tum_trajectory(outdir / "trajectory.txt")
+    kf = _load_npz(outdir / "keyframes.npz", ("ids", "frame_index", "poses"))
+    if kf is not None:
+        K = len(kf["ids"])
+        if kf["poses"].shape != (K, 4, 4):
+            raise ValueError(f"{outdir / 'keyframes.npz'}: poses must be ({K}, 4, 4), got {kf['poses'].shape}")
+        run.kf_ids = kf["ids"].astype(np.int64)
+        run.kf_frame_index = kf["frame_index"].astype(np.int64)
+        run.kf_poses = kf["poses"].astype(np.float64)
+        if "timestamps" in kf and kf["timestamps"].shape == (K,):
+            run.kf_timestamps = kf["timestamps"].astype(np.float64)
+        run.loop_edges = kf.get("loop_edges", np.zeros((0, 2), np.int64)).reshape(-1, 2).astype(np.int64)
+    mp = _load_npz(outdir / "map_points.npz", ("xyz",))
+    if mp is not None:
+        run.map_xyz = mp["xyz"].reshape(-1, 3).astype(np.float64)
+        run.map_rgb = mp["rgb"].reshape(-1, 3).astype(np.uint8) if "rgb" in mp else None
+    dp = _load_npz(outdir / "dynamic_points.npz", ("xyz",))
+    if dp is not None:
+        run.dynamic_xyz = dp["xyz"].reshape(-1, 3).astype(np.float64)
+    if (outdir / "map.ply").is_file():
+        run.dense_xyz, run.dense_rgb = read_ply(outdir / "map.ply")
+    thumbs_dir = outdir / "thumbs"
+    if thumbs_dir.is_dir():
+        for p in thumbs_dir.glob("*.jpg"):
+            if p.stem.isdigit():
+                run.thumbs[int(p.stem)] = p
+    if all(x is None for x in (run.trajectory, run.kf_poses, run.map_xyz, run.dense_xyz)):
+        raise FileNotFoundError(
+            f"{outdir}: nothing to show (no trajectory.txt, keyframes.npz, map_points.npz or map.ply)"
+        )
+    gt = _find_ground_truth(outdir, run.summary, ground_truth)
+    if gt is not None and run.trajectory is not None:
+        from ..evaluation.ate import align_trajectory
+        from ..evaluation.sync import associate_trajectories
+
+        gt_a, est_a = associate_trajectories(gt, run.trajectory)
+        if len(gt_a) >= 3:
+            _, a = align_trajectory(est_a, gt_a, "se3")  # S maps estimate -> ground truth
+            S = np.eye(4)
+            S[:3, :3], S[:3, 3] = a.R, a.t
+            gt = gt.transformed(np.linalg.inv(S))
+        run.ground_truth = gt
+    elif gt is not None:
+        run.ground_truth = gt
+    return run
+
+
+def _find_ground_truth(outdir: Path, summary: dict, given) -> Trajectory | None:
+    if isinstance(given, Trajectory):
+        return given
+    if given is not None:
+        return read_tum_trajectory(given)
+    candidates = [outdir / "groundtruth.txt"]
+    seq = summary.get("sequence")
+    if isinstance(seq, str):
+        candidates.insert(0, Path(seq) / "groundtruth.txt")
+    for c in candidates:
+        if c.is_file():
+            return read_tum_trajectory(c)
+    return None
+
+
+# ------------------------------------------------------------------------ geometry
+def wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
+    """viser quaternion ``(w, x, y, z)`` of rotation matrices ``(3, 3)`` or ``(N, 3, 3)``.
+
+    The one place where the TUM/scipy order ``x y z w`` becomes viser's ``w x y z``.
+    """
+    q = np.asarray(matrix_to_quat_xyzw(np.asarray(R, dtype=np.float64)))
+    return np.concatenate([q[..., 3:4], q[..., :3]], axis=-1)
+
+
+def polyline_segments(points: np.ndarray, max_points: int | None = None) -> np.ndarray:
+    """Consecutive points ``(N, 3)`` as line segments ``(N - 1, 2, 3)``.
+
+    With ``max_points``, a longer path is first thinned to that many evenly spaced vertices
+    (first and last kept), one segment between each two.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if max_points is not None and len(P) > max_points >= 2:
+        P = P[np.unique(np.linspace(0, len(P) - 1, max_points).round().astype(np.int64))]
+    return np.stack([P[:-1], P[1:]], axis=1)
+
+
+def frustum_segments(poses: np.ndarray, fov_y: float, aspect: float, scale: float) -> np.ndarray:
+    """Wireframe frustums of camera poses as line segments, 8 per camera.
+
+    Parameters
+    ----------
+    poses : ``(K, 4, 4)`` ``T_w_c``.
+    fov_y : vertical field of view (radians); ``aspect`` = width / height.
+    scale : distance from the apex to the image rectangle (metres).
+
+    Returns
+    -------
+    ``(8 K, 2, 3)`` segments: apex to the four corners, then the rectangle.
+    """
+    T = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    hy = scale * np.tan(fov_y / 2)
+    hx = hy * aspect
+    local = np.array([[0, 0, 0], [-hx, -hy, scale], [hx, -hy, scale], [hx, hy, scale], [-hx, hy, scale]])
+    W = np.einsum("kij,pj->kpi", T[:, :3, :3], local) + T[:, None, :3, 3]  # (K, 5, 3)
+    a = [0, 0, 0, 0, 1, 2, 3, 4]
+    b = [1, 2, 3, 4, 2, 3, 4, 1]
+    return np.stack([W[:, a], W[:, b]], axis=2).reshape(-1, 2, 3)
+
+
+def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
+    """Centre ``(3,)`` and radius (metres) of the camera path (or the map when there is none)."""
+    parts = [x for x in (run.trajectory.positions if run.trajectory is not None else None,
+                         run.kf_poses[:, :3, 3] if run.kf_poses is not None else None) if x is not None and len(x)]
+    if not parts:
+        parts = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
+    if not parts:
+        return np.zeros(3), 1.0
+    P = np.concatenate(parts)
+    lo, hi = np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)
+    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.75)  # at least a desk-sized view
+
+
+def _up_direction(run: RunData) -> np.ndarray:
+    """World 'up' guessed as the mean of the cameras' -y axes (cameras are held upright)."""
+    poses = run.trajectory.poses if run.trajectory is not None else run.kf_poses
+    if poses is None or len(poses) == 0:
+        return np.array([0.0, 0.0, 1.0])
+    up = -poses[:, :3, 1].mean(axis=0)
+    n = np.linalg.norm(up)
+    return up / n if n > 1e-6 else np.array([0.0, 0.0, 1.0])
+
+
+def initial_view(run: RunData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the viewer's camera starts: ``(eye (3,), look_at (3,), up (3,))`` in metres.
+
+    Behind and above the cameras, looking past the path's centre in the direction the cameras
+    look on average (where the map is); for paths whose cameras look all around (a loop), from
+    above and to the side, at the path's centre.
+    """
+    centre, radius = scene_bounds(run)
+    up = _up_direction(run)
+    poses = run.trajectory.poses if run.trajectory is not None else run.kf_poses
+    fwd = np.zeros(3) if poses is None or len(poses) == 0 else poses[:, :3, 2].mean(axis=0)
+    fwd = fwd - (fwd @ up) * up  # horizontal part of the mean viewing direction
+    if np.linalg.norm(fwd) > 0.3:
+        fwd /= np.linalg.norm(fwd)
+        return centre - radius * (2.0 * fwd - 1.2 * up), centre + radius * fwd, up
+    side = np.cross(up, [1.0, 0.0, 0.0])
+    if np.linalg.norm(side) < 1e-3:
+        side = np.cross(up, [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    return centre + radius * (1.6 * up + 1.6 * side), centre, up
+
+
+# --------------------------------------------------------------------------- scene
+@dataclass
+class SceneHandles:
+    """Handles of what :func:`build_scene` added, for notebooks and tests.
+
+    Attributes
+    ----------
+    nodes : layer name -> viser scene handle (``dense`` appears once it has been sent).
+    slider, play : the playback GUI controls (None without GUI).
+    build_seconds : time :func:`build_scene` took.
+    frame_poses : ``(N, 4, 4)`` poses the playback steps through.
+    on_frame : callback moving the playback to a frame index.
+    deferred : callbacks holding back layers until after the first picture.
+    """
+
+    nodes: dict = field(default_factory=dict)
+    slider: object | None = None
+    play: object | None = None
+    build_seconds: float = 0.0
+    frame_poses: np.ndarray | None = None
+    on_frame: Callable[[int], None] | None = None
+    deferred: list[Callable[[], None]] = field(default_factory=list)
+
+    def add_deferred(self) -> None:
+        """Send what was held back for after the first picture (the dense map) now."""
+        for send in self.deferred:
+            send()
+
+    def set_frame(self, i: int) -> None:
+        """Move the playback to frame ``i`` (what the slider does)."""
+        if self.slider is not None:
+            self.slider.value = int(i)
+        elif self.on_frame is not None:
+            self.on_frame(int(i))
+
+
+def _thumb(path: Path) -> np.ndarray | None:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def build_scene(server, run: RunData, config: SceneConfig | None = None) -> SceneHandles:
+    """Add a run's layers (and the playback GUI) to a viser server.
+
+    Parameters
+    ----------
+    server : ``viser.ViserServer``.
+    run : from :func:`load_run`.
+    config : :class:`SceneConfig`.
+
+    Returns
+    -------
+    SceneHandles (node handles by name, the slider, build time in seconds).
+    """
+    config = config or SceneConfig()
+    t0 = time.perf_counter()
+    h = SceneHandles()
+    scene = server.scene
+    scene.set_up_direction(tuple(_up_direction(run)))
+    eye, target, up = initial_view(run)
+    server.initial_camera.position = tuple(eye)
+    server.initial_camera.look_at = tuple(target)
+    server.initial_camera.up = tuple(up)
+
+    has_dense = run.dense_xyz is not None and len(run.dense_xyz) > 0 and config.max_dense_points > 0
+    if has_dense:
+        xyz, rgb = run.dense_xyz, run.dense_rgb
+        if len(xyz) > config.max_dense_points:
+            idx = np.sort(np.random.default_rng(0).choice(len(xyz), config.max_dense_points, replace=False))
+            xyz, rgb = xyz[idx], (None if rgb is None else rgb[idx])
+        dense_colors = rgb if rgb is not None else np.array([150, 150, 150], np.uint8)
+        dense_xyz = xyz.astype(np.float32)
+        dense_lock = threading.Lock()
+
+        def add_dense() -> None:
+            with dense_lock:
+                if "dense" not in h.nodes:
+                    h.nodes["dense"] = scene.add_point_cloud(
+                        "/map/dense", dense_xyz, dense_colors, point_size=config.point_size_dense,
+                        point_shape="square", point_shading="flat")
+
+        h.deferred.append(add_dense)
+        if config.defer_dense > 0 and config.gui:
+            # The first picture comes without the (large) dense map; it follows a moment later.
+            @server.on_client_connect
+            def _(_client) -> None:
+                timer = threading.Timer(config.defer_dense, add_dense)
+                timer.daemon = True
+                timer.start()
+        else:
+            add_dense()
+    if run.map_xyz is not None and len(run.map_xyz):
+        colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
+        h.nodes["sparse"] = scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
+                                                  point_size=config.point_size_sparse, point_shading="flat")
+    if run.dynamic_xyz is not None and len(run.dynamic_xyz):
+        h.nodes["dynamic"] = scene.add_point_cloud("/map/sparse_dynamic", run.dynamic_xyz.astype(np.float32),
+                                                   np.array(COLORS["dynamic"], np.uint8),
+                                                   point_size=config.point_size_sparse, point_shading="flat")
+    for key, traj in (("ground_truth", run.ground_truth), ("estimate", run.trajectory)):
+        if traj is not None and len(traj) >= 2:
+            h.nodes[key] = scene.add_line_segments(
+                f"/trajectory/{key}", polyline_segments(traj.positions, config.max_path_points).astype(np.float32), COLORS[key],
+                thickness=config.trajectory_thickness, thickness_units="screen")
+    if run.kf_poses is not None and len(run.kf_poses):
+        segs = frustum_segments(run.kf_poses, config.fov_y, config.aspect, config.frustum_scale)
+        h.nodes["keyframes"] = scene.add_line_segments("/keyframes/wireframes", segs.astype(np.float32),
+                                                       COLORS["keyframe"], thickness=1.5, thickness_units="screen")
+        K = len(run.kf_poses)
+        show = np.unique(np.linspace(0, K - 1, min(K, config.max_image_frustums)).round().astype(int))
+        wxyz = wxyz_from_matrix(run.kf_poses[:, :3, :3])
+        for k in show:
+            path = run.thumbs.get(int(run.kf_ids[k]))
+            img = _thumb(path) if path is not None else None
+            if img is None:
+                continue
+            h.nodes[f"kf{int(run.kf_ids[k])}"] = scene.add_camera_frustum(
+                f"/keyframes/thumbs/{int(run.kf_ids[k])}", fov=config.fov_y, aspect=config.aspect,
+                scale=config.frustum_scale, image=img, wxyz=wxyz[k], position=run.kf_poses[k, :3, 3],
+                color=COLORS["keyframe"], thickness=1.5, thickness_units="screen")
+        if run.loop_edges is not None and len(run.loop_edges):
+            pos_of = {int(i): p for i, p in zip(run.kf_ids, run.kf_poses[:, :3, 3])}
+            edges = [(pos_of[int(a)], pos_of[int(b)]) for a, b in run.loop_edges if int(a) in pos_of and int(b) in pos_of]
+            if edges:
+                h.nodes["loops"] = scene.add_line_segments("/loops", np.asarray(edges, np.float32), COLORS["loop"],
+                                                           thickness=4.0, thickness_units="screen")
+
+    # Playback: the frames of the trajectory (or the keyframes when there is none).
+    if run.trajectory is not None and len(run.trajectory):
+        poses, stamps = run.trajectory.poses, run.trajectory.timestamps
+    elif run.kf_poses is not None and len(run.kf_poses):
+        poses = run.kf_poses
+        stamps = np.arange(len(poses), dtype=float)
+    else:
+        poses, stamps = None, None
+    h.frame_poses = poses
+    if poses is not None:
+        current = scene.add_camera_frustum("/playback/current", fov=config.fov_y, aspect=config.aspect,
+                                           scale=config.frustum_scale * 1.5, color=COLORS["current"],
+                                           wxyz=wxyz_from_matrix(poses[0, :3, :3]), position=poses[0, :3, 3],
+                                           thickness=3.0, thickness_units="screen")
+        h.nodes["current"] = current
+        kf_stamps = run.kf_timestamps if run.trajectory is not None else None
+        thumb_node: dict[str, object] = {}
+
+        def on_frame(i: int) -> None:
+            i = int(np.clip(i, 0, len(poses) - 1))
+            current.wxyz = wxyz_from_matrix(poses[i, :3, :3])
+            current.position = poses[i, :3, 3]
+            if run.kf_poses is None or not run.thumbs:
+                return
+            if kf_stamps is not None and np.isfinite(kf_stamps).all():
+                k = int(np.searchsorted(kf_stamps, stamps[i] + 1e-6)) - 1
+            else:
+                k = int(min(i, len(run.kf_poses) - 1))
+            if k < 0:
+                return
+            path = run.thumbs.get(int(run.kf_ids[k]))
+            img = _thumb(path) if path is not None else None
+            if img is None:
+                return
+            node = thumb_node.get("h")
+            if node is None:
+                thumb_node["h"] = scene.add_camera_frustum(
+                    "/playback/keyframe", fov=config.fov_y, aspect=config.aspect, scale=config.frustum_scale * 1.5,
+                    image=img, wxyz=wxyz_from_matrix(run.kf_poses[k, :3, :3]), position=run.kf_poses[k, :3, 3],
+                    color=COLORS["keyframe"], thickness=3.0, thickness_units="screen")
+            else:
+                node.image = img
+                node.wxyz = wxyz_from_matrix(run.kf_poses[k, :3, :3])
+                node.position = run.kf_poses[k, :3, 3]
+
+        h.on_frame = on_frame
+        if config.gui:
+            gui = server.gui
+            h.slider = gui.add_slider("Frame", min=0, max=max(len(poses) - 1, 1), step=1, initial_value=0)
+            h.play = gui.add_checkbox("Play", initial_value=False)
+
+            @h.slider.on_update
+            def _(_event) -> None:
+                on_frame(h.slider.value)
+
+            for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
+                if key in h.nodes or (key == "dense" and has_dense):
+                    cb = gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
+
+                    def toggle(_event, key=key, cb=cb) -> None:
+                        node = h.nodes.get(key)
+                        if node is not None:
+                            node.visible = cb.value
+
+                    cb.on_update(toggle)
+    h.build_seconds = time.perf_counter() - t0
+    return h
+
+
+# ---------------------------------------------------------------------------- servers
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port free on ``host`` right now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def start_viewer(run: RunData | str | Path, port: int | None = None, host: str = "127.0.0.1",
+                 config: SceneConfig | None = None, verbose: bool = False):
+    """Start a viser server on ``host:port`` and build the run's scene in it.
+
+    Returns ``(server, handles)``; stop the server with ``server.stop()``.
+    """
+    import viser
+
+    if not isinstance(run, RunData):
+        run = load_run(run)
+    server = viser.ViserServer(host=host, port=port if port is not None else free_port(host), verbose=verbose)
+    handles = build_scene(server, run, config)
+    return server, handles
+
+
+def play_loop(handles: SceneHandles, stop: threading.Event, fps: float = 15.0) -> None:
+    """Advance the playback slider while its 'Play' box is ticked, until ``stop`` is set."""
+    while not stop.wait(1.0 / fps):
+        if handles.play is not None and handles.play.value and handles.slider is not None:
+            n = handles.slider.max + 1
+            handles.slider.value = (int(handles.slider.value) + 1) % n
+
+
+def show_inline(run: RunData | str | Path, height: int = 500, config: SceneConfig | None = None):
+    """Build the run's scene and embed it in a notebook cell (a static snapshot, no GUI).
+
+    Uses viser's ``server.scene.show()``, which serialises the scene into the notebook's
+    HTML; ipywidgets (not viser's GUI) own the parameters in notebooks. Returns the server
+    (stopped: the embedded page needs no live connection).
+    """
+    import dataclasses
+
+    config = dataclasses.replace(config or SceneConfig(), gui=False)
+    server, handles = start_viewer(run, config=config)
+    server.scene.show(height=height)
+    server.stop()
+    return server

@@ -1,0 +1,126 @@
+"""Safe extraction: good archives extract; malicious members are refused before any write."""
+
+from __future__ import annotations
+
+import io
+import stat
+import tarfile
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from data_fetch.extract import UnsafeArchiveError, safe_extract
+
+
+def _tar(path: Path, members: list[tuple[tarfile.TarInfo, bytes | None]]) -> Path:
+    with tarfile.open(path, "w:gz") as tf:
+        for info, data in members:
+            if data is not None:
+                info.size = len(data)
+                tf.addfile(info, io.BytesIO(data))
+            else:
+                tf.addfile(info)
+    return path
+
+
+def _file(name: str, data: bytes = b"x") -> tuple[tarfile.TarInfo, bytes]:
+    return tarfile.TarInfo(name), data
+
+
+def _link(name: str, target: str, kind=tarfile.SYMTYPE) -> tuple[tarfile.TarInfo, None]:
+    info = tarfile.TarInfo(name)
+    info.type = kind
+    info.linkname = target
+    return info, None
+
+
+def test_good_tgz(tmp_path):
+    d = tarfile.TarInfo("seq")
+    d.type = tarfile.DIRTYPE
+    arc = _tar(tmp_path / "ok.tgz", [
+        (d, None),
+        _file("seq/rgb.txt", b"# rgb\n1.0 rgb/1.0.png\n"),
+        _file("seq/rgb/1.0.png", b"\x89PNG"),
+        _link("seq/latest.png", "rgb/1.0.png"),
+    ])
+    out = tmp_path / "out"
+    files = safe_extract(arc, out)
+    assert sorted(p.relative_to(out.resolve()).as_posix() for p in files) == ["seq/rgb.txt", "seq/rgb/1.0.png"]
+    assert (out / "seq/rgb.txt").read_bytes().startswith(b"# rgb")
+    assert (out / "seq/latest.png").is_symlink()
+
+
+def test_good_zip(tmp_path):
+    arc = tmp_path / "ok.zip"
+    with zipfile.ZipFile(arc, "w") as zf:
+        zf.writestr("rgbd_bonn_crowd/groundtruth.txt", "1 0 0 0 0 0 0 1\n")
+        zf.writestr("rgbd_bonn_crowd/rgb/1.png", b"png")
+    files = safe_extract(arc, tmp_path / "out")
+    assert len(files) == 2
+    assert (tmp_path / "out/rgbd_bonn_crowd/groundtruth.txt").read_text().startswith("1 0")
+
+
+@pytest.mark.parametrize(
+    "members, message",
+    [
+        ([_file("ok.txt"), _file("../evil.txt")], "contains '..'"),
+        ([_file("/tmp/evil_abs.txt")], "absolute path"),
+        ([_file("a/../../evil.txt")], "contains '..'"),
+        ([_link("escape", "/etc")], "points outside"),
+        ([_link("up", "../../..")], "points outside"),
+        ([_link("hard", "/etc/passwd", tarfile.LNKTYPE)], "points outside"),
+    ],
+    ids=["dotdot", "absolute", "nested-dotdot", "symlink-abs", "symlink-up", "hardlink"],
+)
+def test_malicious_tar_refused(tmp_path, members, message):
+    arc = _tar(tmp_path / "bad.tgz", members)
+    out = tmp_path / "deep" / "out"
+    with pytest.raises(UnsafeArchiveError, match=message) as exc:
+        safe_extract(arc, out)
+    assert "bad.tgz" in str(exc.value)
+    assert list(out.iterdir()) == []  # nothing extracted, not even the good member
+    assert not (tmp_path / "deep" / "evil.txt").exists() and not (tmp_path / "evil.txt").exists()
+
+
+def test_symlink_then_write_through_it_refused(tmp_path):
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    arc = _tar(tmp_path / "bad.tgz", [_link("d", str(outside)), _file("d/pwned.txt", b"x")])
+    with pytest.raises(UnsafeArchiveError):
+        safe_extract(arc, tmp_path / "out")
+    assert not (outside / "pwned.txt").exists()
+
+
+@pytest.mark.parametrize("kind", [tarfile.CHRTYPE, tarfile.BLKTYPE, tarfile.FIFOTYPE])
+def test_device_files_refused(tmp_path, kind):
+    info = tarfile.TarInfo("dev/thing")
+    info.type = kind
+    arc = _tar(tmp_path / "dev.tgz", [(info, None)])
+    with pytest.raises(UnsafeArchiveError, match="device or special"):
+        safe_extract(arc, tmp_path / "out")
+
+
+def test_malicious_zip_refused(tmp_path):
+    arc = tmp_path / "bad.zip"
+    with zipfile.ZipFile(arc, "w") as zf:
+        zf.writestr("fine.txt", "ok")
+        zf.writestr("../evil.txt", "x")
+    with pytest.raises(UnsafeArchiveError, match="contains '..'"):
+        safe_extract(arc, tmp_path / "out")
+    assert not (tmp_path / "evil.txt").exists() and not (tmp_path / "out" / "fine.txt").exists()
+
+    arc2 = tmp_path / "link.zip"
+    with zipfile.ZipFile(arc2, "w") as zf:
+        info = zipfile.ZipInfo("link")
+        info.external_attr = (stat.S_IFLNK | 0o777) << 16
+        zf.writestr(info, "/etc/passwd")
+    with pytest.raises(UnsafeArchiveError, match="symbolic link"):
+        safe_extract(arc2, tmp_path / "out2")
+
+
+def test_not_an_archive(tmp_path):
+    p = tmp_path / "x.tgz"
+    p.write_bytes(b"plain text, not an archive")
+    with pytest.raises(ValueError, match="not a tar or zip"):
+        safe_extract(p, tmp_path / "out")

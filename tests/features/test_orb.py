@@ -1,0 +1,79 @@
+"""ORB extraction: spread over grid and pyramid, OpenCV descriptors, clear errors."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from dynslam_lab.features.orb import Features, OrbConfig, extract_features, level_quotas, scale_factors
+from tests.conftest import shared_file
+
+
+@pytest.fixture(scope="module")
+def gray():
+    img = cv2.imread(str(shared_file("tum/frames/fr3_walking_xyz_1341846313.553992_rgb.png")), cv2.IMREAD_GRAYSCALE)
+    assert img is not None
+    return img
+
+
+def test_level_quotas_geometric_series():
+    cfg = OrbConfig(n_features=1000, scale_factor=1.2, n_levels=8)
+    q = level_quotas(cfg)
+    assert q.sum() == 1000
+    # n_s / n_{s+1} = f (up to rounding), the series of ORB-SLAM2.
+    ratios = q[:-2] / q[1:-1]
+    assert np.allclose(ratios, 1.2, atol=0.03)
+    first = 1000 * (1 - 1 / 1.2) / (1 - (1 / 1.2) ** 8)
+    assert abs(q[0] - first) <= 0.5
+    assert np.allclose(scale_factors(cfg), 1.2 ** np.arange(8))
+
+
+def test_real_frame_count_spread_and_levels(gray):
+    cfg = OrbConfig()
+    f = extract_features(gray, cfg)
+    assert 950 <= len(f) <= cfg.n_features
+    assert f.uv.dtype == np.float32 and f.uv.shape == (len(f), 2)
+    assert f.descriptors.shape == (len(f), 32) and f.descriptors.dtype == np.uint8
+    assert np.all((f.angle >= 0) & (f.angle < 360))
+    # per-level counts follow the quotas (the TUM office frame has corners enough)
+    counts = np.bincount(f.octave, minlength=cfg.n_levels)
+    assert np.all(np.abs(counts - level_quotas(cfg)) <= 0.1 * level_quotas(cfg) + 2)
+    # spread: features in most cells of a coarse 8x6 grid (plain ORB clusters on texture)
+    h, w = gray.shape
+    cells = set(zip((f.uv[:, 0] * 8 // w).astype(int), (f.uv[:, 1] * 6 // h).astype(int)))
+    plain = cv2.ORB_create(nfeatures=1000).detect(gray, None)
+    pc = set(zip((np.array([k.pt[0] for k in plain]) * 8 // w).astype(int), (np.array([k.pt[1] for k in plain]) * 6 // h).astype(int)))
+    assert len(cells) >= 40 and len(cells) >= len(pc)
+
+
+def test_descriptors_match_opencv_on_same_keypoints(gray):
+    f = extract_features(gray, OrbConfig(n_features=300))
+    kps = [cv2.KeyPoint(float(u), float(v), 31.0 * 1.2**o, float(a), float(r), int(o))
+           for (u, v), o, a, r in zip(f.uv, f.octave, f.angle, f.response)]
+    _, ref = cv2.ORB_create(nfeatures=300, edgeThreshold=19, patchSize=31).compute(gray, kps)
+    assert ref is not None and len(ref) == len(f)
+    assert np.mean(np.all(ref == f.descriptors, axis=1)) > 0.95
+
+
+def test_mask_and_blank_image(gray):
+    mask = np.zeros_like(gray, bool)
+    mask[:, : gray.shape[1] // 2] = True
+    f = extract_features(gray, OrbConfig(n_features=400), mask=mask)
+    assert len(f) > 100 and np.all(f.uv[:, 0] < gray.shape[1] // 2 + 1)
+    blank = np.full((120, 160), 128, np.uint8)
+    e = extract_features(blank, OrbConfig(n_features=100))
+    assert len(e) == 0 and e.descriptors.shape == (0, 32)
+
+
+def test_bad_input_errors(gray):
+    with pytest.raises(ValueError, match="grey image"):
+        extract_features(np.dstack([gray] * 3))
+    with pytest.raises(ValueError, match="uint8"):
+        extract_features(gray.astype(np.float32))
+    with pytest.raises(ValueError, match="mask shape"):
+        extract_features(gray, mask=np.ones((10, 10), bool))
+    with pytest.raises(ValueError, match="scale_factor"):
+        OrbConfig(scale_factor=1.0)
+    with pytest.raises(ValueError, match="Features.octave"):
+        Features(np.zeros((3, 2)), np.zeros(2), np.zeros(3), np.zeros(3), np.zeros((3, 32), np.uint8))

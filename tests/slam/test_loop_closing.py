@@ -1,0 +1,278 @@
+"""Loop closing: 3D-3D RANSAC, verification, 3D guided matching, consistency, and the whole
+LoopCloser on a generated drifting loop (a real Map and KeyFrames of the SLAM core)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, transform_points
+from dynslam_lab.slam.frame import KeyFrame
+from dynslam_lab.camera import PinholeCamera
+from dynslam_lab.slam.loop_closing import (
+    LoopClosingConfig,
+    LoopCloser,
+    consistent_candidates,
+    intrinsics_from_keyframe,
+    match_points_3d,
+    ransac_rigid_3d,
+    verify_loop,
+)
+from dynslam_lab.slam.map import Map
+from dynslam_lab.slam.vocabulary import VocabularyConfig, train_vocabulary
+
+FX = FY = 525.0
+CX, CY = 319.5, 239.5
+
+
+def flip_bits(desc: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    bits = np.unpackbits(desc, axis=1)
+    cols = np.argsort(rng.random(bits.shape), axis=1)[:, :n]
+    np.put_along_axis(bits, cols, 1 - np.take_along_axis(bits, cols, axis=1), axis=1)
+    return np.packbits(bits, axis=1)
+
+
+# --------------------------------------------------------------------------- RANSAC / verification
+def test_ransac_rigid_3d_recovers_pose_with_outliers():
+    rng = np.random.default_rng(0)
+    T = make_pose(so3_exp([0.2, -0.4, 0.1]), [0.5, -0.2, 1.0])
+    P = rng.uniform(-2, 2, (200, 3)) + [0, 0, 3]
+    Q = transform_points(T, P) + rng.normal(0, 0.002, (200, 3))
+    out = rng.random(200) < 0.4
+    Q[out] = rng.uniform(-2, 2, (out.sum(), 3)) + [0, 0, 3]
+    T_est, inl = ransac_rigid_3d(P, Q, 0.02, 300, rng=1)
+    np.testing.assert_allclose(T_est, T, atol=2e-3)
+    assert np.array_equal(inl, ~out) or (inl != ~out).sum() <= 2
+
+
+def test_ransac_too_few_points_gives_no_inliers():
+    T, inl = ransac_rigid_3d(np.zeros((2, 3)), np.zeros((2, 3)), 0.1)
+    assert not inl.any() and np.array_equal(T, np.eye(4))
+
+
+def _two_views(rng, n=300, T_q_c=None, outlier_frac=0.0):
+    X_c = rng.uniform([-2, -1.5, 1.0], [2, 1.5, 4.0], (n, 3))
+    T_q_c = T_q_c if T_q_c is not None else make_pose(so3_exp([0.05, 0.3, -0.02]), [0.4, 0.05, -0.1])
+    X_q = transform_points(T_q_c, X_c)
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    dq = flip_bits(desc, 6, rng)
+    bad = rng.random(n) < outlier_frac
+    X_q[bad] += rng.normal(0, 0.5, (bad.sum(), 3))
+    perm = rng.permutation(n)
+    return dq[perm], X_q[perm], desc, X_c, T_q_c, perm
+
+
+def test_verify_loop_true_pair():
+    rng = np.random.default_rng(2)
+    dq, Xq, dc, Xc, T, perm = _two_views(rng, outlier_frac=0.3)
+    Xq[::10] = np.nan  # no depth for some keypoints
+    v = verify_loop(dq, Xq, dc, Xc, LoopClosingConfig(), rng=0)
+    assert v.accepted and v.n_inliers >= 150
+    np.testing.assert_allclose(v.T_q_c, T, atol=5e-3)
+    # matches connect the same landmark
+    assert np.mean(perm[v.idx_q] == v.idx_c) > 0.95
+
+
+def test_verify_loop_rejects_unrelated_views():
+    rng = np.random.default_rng(3)
+    dq, Xq, _, _, _, _ = _two_views(rng)
+    _, _, dc, Xc, _, _ = _two_views(np.random.default_rng(4))
+    v = verify_loop(dq, Xq, dc, Xc, LoopClosingConfig(), rng=0)
+    assert not v.accepted
+
+
+def test_verify_loop_rejects_same_descriptors_wrong_geometry():
+    """Descriptors repeat (a repetitive texture) but the 3D structure disagrees: no loop."""
+    rng = np.random.default_rng(5)
+    dq, Xq, dc, Xc, _, _ = _two_views(rng)
+    Xq = rng.permutation(Xq)  # geometry scrambled
+    v = verify_loop(dq, Xq, dc, Xc, LoopClosingConfig(), rng=0)
+    assert v.n_matches > 100 and not v.accepted
+
+
+def test_match_points_3d_pairs_by_position_and_descriptor():
+    rng = np.random.default_rng(6)
+    X = rng.uniform([-2, -1, 1], [2, 1, 4], (100, 3))
+    d = rng.integers(0, 256, (100, 32), dtype=np.uint8)
+    perm = rng.permutation(100)
+    pts = X[perm] + rng.normal(0, 0.005, (100, 3))
+    dk = flip_bits(d[perm], 5, rng)
+    pts[:5] = np.nan
+    ip, ik = match_points_3d(X, d, pts, dk, 0.02, 0.01)
+    assert len(ip) == 95
+    np.testing.assert_array_equal(perm[ik], ip)
+    # a different descriptor at the same position does not match
+    ip2, _ = match_points_3d(X, rng.integers(0, 256, (100, 32), dtype=np.uint8), pts, dk, 0.02, 0.01)
+    assert len(ip2) == 0
+
+
+def test_consistency_needs_three_consecutive_detections():
+    prev: list = []
+    seq = [{10: {9, 10, 11}}, {11: {10, 11, 12}}, {12: {11, 12, 13}}, {12: {12, 13}}]
+    accepted_at = []
+    for t, groups in enumerate(seq):
+        acc, prev = consistent_candidates(groups, prev, threshold=3)
+        accepted_at.append(acc)
+    assert accepted_at == [[], [], [], [12]]
+    # a break in the chain restarts the count
+    acc, prev = consistent_candidates({50: {50, 51}}, prev, threshold=3)
+    assert acc == [] and prev == [({50, 51}, 0)]
+
+
+# --------------------------------------------------------------------------- the whole loop closer
+def _look_out(angle: float, radius: float) -> np.ndarray:
+    """Camera on a circle of ``radius`` at height 0, looking radially outwards (y down)."""
+    c = radius * np.array([np.cos(angle), 0.0, np.sin(angle)])
+    z = np.array([np.cos(angle), 0.0, np.sin(angle)])
+    y = np.array([0.0, 1.0, 0.0])
+    x = np.cross(y, z)
+    return make_pose(np.stack([x, y, z], axis=1), c)
+
+
+def drifted(T_gt: np.ndarray, seed: int) -> np.ndarray:
+    """Odometry with a random-walk error (2 cm, 0.3 deg per keyframe) and a yaw bias (0.2 deg)."""
+    rng = np.random.default_rng(seed + 100)
+    T_est = [T_gt[0]]
+    for k in range(1, len(T_gt)):
+        err = make_pose(so3_exp(rng.normal(0, 0.005, 3) + [0.0, 0.0035, 0.0]), rng.normal(0, 0.02, 3))
+        T_est.append(T_est[-1] @ relative_pose(T_gt[k - 1], T_gt[k]) @ err)
+    return np.stack(T_est)
+
+
+def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, seed: int = 0,
+                   config: LoopClosingConfig = LoopClosingConfig(global_ba=False), per_kf: int = 600):
+    """Keyframes around a cylindrical room of random landmarks, with drifting pose estimates.
+
+    Map points are reused for landmarks seen in the last 3 keyframes; a landmark seen again
+    after longer gets a new (duplicate) point, like tracking without loop closure.
+    Returns (closer, map, T_gt (K,4,4), T_est_before (K,4,4)).
+    """
+    rng = np.random.default_rng(seed)
+    n_lm = 4000
+    ang = rng.uniform(0, 2 * np.pi, n_lm)
+    L = np.stack([5.0 * np.cos(ang), rng.uniform(-1.5, 1.5, n_lm), 5.0 * np.sin(ang)], axis=1)
+    L_desc = rng.integers(0, 256, (n_lm, 32), dtype=np.uint8)
+    voc = train_vocabulary(
+        [flip_bits(L_desc[i::8], 6, rng) for i in range(8)], VocabularyConfig(branching=8, depth=3), rng=0
+    )
+    T_gt = np.stack([_look_out(a, 1.0) for a in np.radians(np.linspace(0, total_angle_deg, n_kf))])
+    T_est = drifted(T_gt, seed)
+    mp = Map()
+    closer = LoopCloser(config, vocabulary=voc)
+    lm_point: dict[int, tuple[int, int]] = {}  # landmark -> (map point id, last keyframe seen)
+    results = []
+    for k in range(n_kf):
+        Xc = transform_points(se3_inv(T_gt[k]), L)
+        z = Xc[:, 2]
+        u = FX * Xc[:, 0] / np.maximum(z, 1e-9) + CX
+        v = FY * Xc[:, 1] / np.maximum(z, 1e-9) + CY
+        vis = np.flatnonzero((z > 0.3) & (z < 8) & (u >= 0) & (u < 640) & (v >= 0) & (v < 480))
+        vis = vis[rng.random(len(vis)) < 0.8][:per_kf]
+        pts_c = Xc[vis] * (1 + rng.normal(0, 0.002, (len(vis), 1)))
+        desc = flip_bits(L_desc[vis], 6, rng)
+        static = np.ones(len(vis), bool)
+        if dynamic:
+            # a third of the keypoints belong to "people": random points and descriptors, judged dynamic
+            n_dyn = len(vis) // 3
+            static[:n_dyn] = False
+            desc[:n_dyn] = rng.integers(0, 256, (n_dyn, 32), dtype=np.uint8)
+        kf = KeyFrame(
+            id=mp.new_keyframe_id(), frame_index=k, timestamp=float(k), _T_w_c=T_est[k],
+            uv=np.stack([u[vis], v[vis]], 1), descriptors=desc, octave=np.zeros(len(vis), np.int64),
+            angle=np.zeros(len(vis)), points_c=pts_c, map_point_ids=np.full(len(vis), -1, np.int64), static=static,
+        )
+        reuse = np.array([lm in lm_point and lm_point[lm][1] >= k - 3 for lm in vis.tolist()], bool) & static
+        kf.map_point_ids[reuse] = [lm_point[lm][0] for lm in vis[reuse].tolist()]
+        mp.add_keyframe(kf)
+        new = np.flatnonzero(~reuse & static)
+        ids = mp.add_points(transform_points(kf.T_w_c, pts_c[new]), desc[new], kf, new)
+        for lm, pid in zip(vis[new].tolist(), ids.tolist()):
+            lm_point[lm] = (pid, k)
+        for lm in vis[reuse].tolist():
+            lm_point[lm] = (lm_point[lm][0], k)
+        mp.update_geometry(mp.point_ids())
+        r = closer.on_keyframe(kf, mp)
+        if r is not None:
+            results.append(r)
+            # after a loop the tracker would continue from the corrected pose: so does the generator
+            T_est[k:] = kf.T_w_c @ se3_inv(T_est[k]) @ T_est[k:]
+    return closer, mp, T_gt, T_est, results
+
+
+def _ate(T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    from dynslam_lab.geometry.align import umeyama_alignment
+
+    a = umeyama_alignment(T_est[:, :3, 3], T_gt[:, :3, 3])
+    return float(np.sqrt(np.mean(np.sum((a.apply(T_est[:, :3, 3]) - T_gt[:, :3, 3]) ** 2, axis=1))))
+
+
+@pytest.mark.parametrize("global_ba", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["pose_graph", "global_ba"])
+def test_loop_closer_closes_drifting_loop_and_reduces_error(global_ba):
+    cfg = LoopClosingConfig(global_ba=global_ba)
+    closer, mp, T_gt, T_before, results = run_loop_scene(400.0, 44, config=cfg, per_kf=600 if not global_ba else 250)
+    assert len(results) >= 1
+    r = results[0]
+    # the loop keyframe sees the same place as the query keyframe (same angle modulo 360)
+    ang = np.degrees(np.arctan2(T_gt[:, 2, 3], T_gt[:, 0, 3])) % 360
+    d = abs((ang[r.query_kf_id] - ang[r.loop_kf_id] + 180) % 360 - 180)
+    assert d < 25.0
+    assert r.n_inliers >= 20 and r.n_map_matches >= 40
+    # verified relative pose against ground truth
+    T_true = relative_pose(T_gt[r.query_kf_id], T_gt[r.loop_kf_id])
+    np.testing.assert_allclose(r.T_query_loop[:3, 3], T_true[:3, 3], atol=0.03)
+    # after correction, the keyframe trajectory is much closer to ground truth than the drifted one
+    ids = sorted(mp.keyframes)
+    T_after = np.stack([mp.keyframes[i].T_w_c for i in ids])
+    ate_before = _ate(drifted(T_gt, 0)[ids], T_gt[ids])
+    ate_after = _ate(T_after, T_gt[ids])
+    assert ate_after < 0.5 * ate_before
+    assert mp.keyframes[r.query_kf_id].loop_edges == {r.loop_kf_id}
+    # map points follow: landmark-to-point error shrinks with the correction
+    assert closer.loop_edges[0] == (r.query_kf_id, r.loop_kf_id)
+
+
+def test_no_loop_without_revisit_even_with_dynamic_clutter():
+    closer, mp, _, _, results = run_loop_scene(200.0, 24, dynamic=True, seed=1)
+    assert results == []
+    assert len(closer.database) == len(mp.keyframes)
+
+
+def test_intrinsics_recovered_from_backprojection():
+    cam = PinholeCamera(517.3, 516.5, 318.6, 255.3)
+    rng = np.random.default_rng(7)
+    uv = rng.uniform([0, 0], [640, 480], (50, 2))
+    z = rng.uniform(0.5, 4.0, 50)
+    z[:5] = np.nan
+    pts = cam.backproject(uv, z)
+    np.testing.assert_allclose(intrinsics_from_keyframe(uv, pts), (517.3, 516.5, 318.6, 255.3), rtol=1e-9)
+    with pytest.raises(ValueError, match="fewer than 3"):
+        intrinsics_from_keyframe(uv[:7], pts[:7])
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="match_ratio"):
+        LoopClosingConfig(match_ratio=1.5)
+    with pytest.raises(ValueError, match="min_inliers"):
+        LoopClosingConfig(min_inliers=2)
+    with pytest.raises(ValueError, match="inlier tolerance"):
+        LoopClosingConfig(inlier_abs=0.0, inlier_rel=0.0)
+
+
+def test_only_static_keypoints_feed_the_database():
+    rng = np.random.default_rng(9)
+    desc = rng.integers(0, 256, (400, 32), dtype=np.uint8)
+    voc = train_vocabulary([desc[:200], desc[200:]], VocabularyConfig(branching=6, depth=2), rng=0)
+    static = rng.random(400) < 0.5
+    kf = KeyFrame(id=0, frame_index=0, timestamp=0.0, _T_w_c=np.eye(4), uv=np.zeros((400, 2)), descriptors=desc,
+                  octave=np.zeros(400, np.int64), angle=np.zeros(400), points_c=np.ones((400, 3)),
+                  map_point_ids=np.full(400, -1, np.int64), static=static)
+    closer = LoopCloser(LoopClosingConfig(), vocabulary=voc)
+    b = closer.keyframe_bow(kf)
+    ref = voc.bow(desc[static])
+    np.testing.assert_array_equal(b.words, ref.words)
+    np.testing.assert_allclose(b.weights, ref.weights)
+    mp = Map()
+    mp.add_keyframe(kf)
+    assert closer.on_keyframe(kf, mp) is None and 0 in closer.database
+    off = LoopCloser(LoopClosingConfig(enabled=False), vocabulary=voc)
+    assert off.on_keyframe(kf, mp) is None and len(off.database) == 0

@@ -1,0 +1,112 @@
+"""Map bookkeeping: observations, covisibility weights, culling, spanning tree, scale range."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dynslam_lab.geometry.se3 import make_pose
+from dynslam_lab.slam.frame import KeyFrame
+from dynslam_lab.slam.map import Map
+
+
+def _kf(mp: Map, n: int, T=None, octave=0) -> KeyFrame:
+    kid = mp.new_keyframe_id()
+    kf = KeyFrame(
+        id=kid, frame_index=kid, timestamp=float(kid), _T_w_c=np.eye(4) if T is None else T,
+        uv=np.zeros((n, 2)), descriptors=np.zeros((n, 32), np.uint8), octave=np.full(n, octave),
+        angle=np.zeros(n), points_c=np.zeros((n, 3)), map_point_ids=np.full(n, -1, np.int64), static=np.ones(n, bool),
+    )
+    mp.add_keyframe(kf)
+    return kf
+
+
+def test_covisibility_weights_and_spanning_tree():
+    mp = Map()
+    a = _kf(mp, 10)
+    ids = mp.add_points(np.c_[np.arange(10.0), np.zeros(10), np.full(10, 2.0)], np.zeros((10, 32), np.uint8), a, np.arange(10))
+    b = _kf(mp, 10)
+    b.map_point_ids[:6] = ids[:6]  # b sees 6 of a's points
+    c = _kf(mp, 10)
+    c.map_point_ids[:3] = ids[4:7]  # c sees 3 of a's points, 2 of them also seen by b
+    mp.invalidate()
+    assert mp.covisibility(a.id) == {b.id: 6, c.id: 3}
+    assert mp.covisibility(b.id) == {a.id: 6, c.id: 2}
+    assert mp.best_covisibles(a.id) == [b.id, c.id]
+    assert mp.observations(int(ids[5])) == {a.id: 5, b.id: 5, c.id: 1}
+    assert list(mp.n_obs(ids[[0, 4, 5, 6, 9]])) == [2, 3, 3, 2, 1]
+    # the parent of a new keyframe is the keyframe it shares most points with
+    d = KeyFrame(id=mp.new_keyframe_id(), frame_index=9, timestamp=9.0, _T_w_c=np.eye(4), uv=np.zeros((4, 2)),
+                 descriptors=np.zeros((4, 32), np.uint8), octave=np.zeros(4), angle=np.zeros(4),
+                 points_c=np.zeros((4, 3)), map_point_ids=ids[[0, 7, 8, 9]].copy(), static=np.ones(4, bool))
+    mp.add_keyframe(d)
+    assert d.parent_id == a.id and d.id in a.children  # 4 shared with a, 1 with b
+    # culling a point clears it from every keyframe
+    mp.remove_points(ids[[5]])
+    assert not mp.alive[ids[5]] and ids[5] not in a.map_point_ids and ids[5] not in b.map_point_ids
+    assert mp.covisibility(a.id)[b.id] == 5
+
+
+def test_remove_keyframe_keeps_pose_of_culled_anchor():
+    mp = Map()
+    a = _kf(mp, 3)
+    ids = mp.add_points(np.eye(3) + [0, 0, 2], np.zeros((3, 32), np.uint8), a, np.arange(3))
+    T_b = make_pose(t=[1.0, 0, 0])
+    b = _kf(mp, 3, T=T_b)
+    b.map_point_ids[:] = ids
+    c = _kf(mp, 3, T=make_pose(t=[2.0, 0, 0]))
+    c.map_point_ids[:] = ids
+    c.parent_id = b.id
+    b.children.add(c.id)
+    mp.invalidate()
+    mp.remove_keyframe(b.id)
+    assert b.id not in mp.keyframes and c.parent_id == b.parent_id
+    assert np.allclose(mp.keyframe_pose(b.id), T_b)
+    a.set_pose(make_pose(t=[0, 1.0, 0]))  # a loop correction moves the parent ...
+    assert np.allclose(mp.keyframe_pose(b.id)[:3, 3], [1.0, 1.0, 0])  # ... and the culled keyframe with it
+    with pytest.raises(ValueError, match="first keyframe"):
+        mp.remove_keyframe(a.id)
+
+
+def test_scale_range_and_predicted_level():
+    mp = Map(scale_factor=1.2, n_levels=8)
+    kf = _kf(mp, 1, octave=2)
+    pid = mp.add_points(np.array([[0.0, 0.0, 3.0]]), np.zeros((1, 32), np.uint8), kf, np.array([0]))
+    # seen at 3 m on level 2: d_max = 3 * 1.2^2, d_min = d_max / 1.2^7
+    assert np.isclose(mp.max_dist[pid[0]], 3 * 1.44)
+    assert np.isclose(mp.min_dist[pid[0]], 3 * 1.44 / 1.2**7)
+    assert np.allclose(mp.normal[pid[0]], [0, 0, 1])
+    assert mp.predict_level(pid, np.array([3.0]))[0] == 2
+    assert mp.predict_level(pid, np.array([3 * 1.44]))[0] == 0
+    assert mp.predict_level(pid, np.array([0.1]))[0] == 7
+    with pytest.raises(ValueError, match="not in the map"):
+        mp.add_points(np.zeros((1, 3)), np.zeros((1, 32), np.uint8), KeyFrame(
+            99, 0, 0.0, np.eye(4), np.zeros((1, 2)), np.zeros((1, 32), np.uint8), np.zeros(1), np.zeros(1),
+            np.zeros((1, 3)), np.full(1, -1), np.ones(1, bool)), np.array([0]))
+    with pytest.raises(ValueError, match="finite"):
+        kf.set_pose(np.full((4, 4), np.nan))
+
+
+def test_distinctive_descriptor_is_the_most_central_observation():
+    rng = np.random.default_rng(0)
+    mp = Map()
+    base = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    kfs = [_kf(mp, 2) for _ in range(5)]
+    ids = mp.add_points(np.ones((2, 3)), rng.integers(0, 256, (2, 32), dtype=np.uint8), kfs[0], np.arange(2))
+    bits = np.unpackbits(base, axis=1)
+    variants = []
+    for flips in ([], list(range(0, 20)), list(range(200, 220)), list(range(100, 140)), list(range(60, 80))):
+        b = bits.copy()
+        b[0, flips] ^= 1
+        variants.append(np.packbits(b, axis=1)[0])
+    # point 0 is seen by the 5 keyframes with the 5 variants; point 1 by keyframe 0 only
+    for kf, v in zip(kfs, variants):
+        kf.descriptors[0] = v
+        kf.map_point_ids[0] = ids[0]
+    mp.invalidate()
+    before1 = mp.descriptors[ids[1]].copy()
+    mp.update_descriptors(ids)
+    # medians (self included): base 20; the others 40, 40, 60, 40 -> the base wins
+    assert np.array_equal(mp.descriptors[ids[0]], variants[0])
+    assert not np.array_equal(before1, kfs[0].descriptors[1])
+    assert np.array_equal(mp.descriptors[ids[1]], kfs[0].descriptors[1])  # a single observation
