@@ -108,6 +108,10 @@ from dataclasses import dataclass, field  # noqa: E402
 from .features.orb import OrbConfig  # noqa: E402
 from .slam.local_mapping import LocalMappingConfig  # noqa: E402
 from .slam.tracking import TrackingConfig  # noqa: E402
+from .detection.config import DetectionConfig  # noqa: E402
+from .dynamic.config import ScreeningConfig  # noqa: E402
+from .slam.loop_closing import LoopClosingConfig  # noqa: E402
+from .mapping.dense import DenseMapConfig  # noqa: E402
 
 __all__ += ["Config"]
 
@@ -122,3 +126,7 @@ class Config:
     orb: OrbConfig = field(default_factory=OrbConfig)  # ORB extraction (features/orb.py)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)  # tracking (slam/tracking.py)
     local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)  # local mapping (slam/local_mapping.py)
+    detection: DetectionConfig = field(default_factory=DetectionConfig)  # detectors, NMS, motion priors (detection/config.py)
+    screening: ScreeningConfig = field(default_factory=ScreeningConfig)  # dynamic-feature screening (dynamic/config.py)
+    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)  # loop closing (slam/loop_closing.py)
+    dense_map: DenseMapConfig = field(default_factory=DenseMapConfig)  # dense static map (mapping/dense.py)
