@@ -194,6 +194,21 @@ def cull_recent_points(mp: Map, recent: np.ndarray, current_kf_id: int, cfg: Loc
     return recent[~bad & (age < cfg.recent_age)]
 
 
+def gather_observations(kfs: dict[int, KeyFrame], o_kf: np.ndarray, o_kp: np.ndarray, bf: float,
+                        scale_factor: float) -> Observations:
+    """The bundle-adjustment observations of ``(keyframe id, keypoint index)`` pairs ``o_kf, o_kp`` (M,):
+    each keypoint's pixel, depth (metres) and pyramid level, gathered keyframe by keyframe."""
+    uv = np.empty((len(o_kf), 2))
+    depth = np.empty(len(o_kf))
+    octave = np.empty(len(o_kf), np.int64)
+    for k, f in kfs.items():  # one vectorised gather per keyframe
+        sel = o_kf == k
+        uv[sel] = f.uv[o_kp[sel]]
+        depth[sel] = f.points_c[o_kp[sel], 2]
+        octave[sel] = f.octave[o_kp[sel]]
+    return Observations.from_keypoints(uv, depth, octave, bf, scale_factor)
+
+
 def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMappingConfig, bf: float,
                  scale_factor: float) -> dict:
     """Local BA around ``kf``; writes poses and points back, removes outlier observations."""
@@ -215,15 +230,7 @@ def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMapping
     use = np.isin(o_kf, local + fixed)
     o_kf, o_pt, o_kp = o_kf[use], o_pt[use], o_kp[use]
     kfs = {k: mp.keyframes[k] for k in set(local) | set(fixed)}
-    uv = np.empty((len(o_kf), 2))
-    depth = np.empty(len(o_kf))
-    octave = np.empty(len(o_kf), np.int64)
-    for k, f in kfs.items():  # gather per keyframe
-        sel = o_kf == k
-        uv[sel] = f.uv[o_kp[sel]]
-        depth[sel] = f.points_c[o_kp[sel], 2]
-        octave[sel] = f.octave[o_kp[sel]]
-    obs = Observations.from_keypoints(uv, depth, octave, bf, scale_factor)
+    obs = gather_observations(kfs, o_kf, o_kp, bf, scale_factor)
     poses = {k: f.T_c_w for k, f in kfs.items()}
     res = local_bundle_adjustment(poses, fixed_set, mp.xyz[pts], o_kf, np.searchsorted(pts, o_pt), obs, camera, bf,
                                   max_nfev=cfg.ba_iterations)

@@ -395,7 +395,8 @@ def global_bundle_adjustment(mp, fixed_kf: int, bf: float = 40.0, iterations: in
     from the keyframes themselves (:func:`intrinsics_from_keyframe`).
     """
     from ..camera import PinholeCamera
-    from .optimize import Observations, local_bundle_adjustment
+    from .local_mapping import gather_observations
+    from .optimize import local_bundle_adjustment
 
     pts = mp.point_ids()
     o_kf, o_pt, o_kp = mp.observations_of(pts)
@@ -405,15 +406,7 @@ def global_bundle_adjustment(mp, fixed_kf: int, bf: float = 40.0, iterations: in
     ref = max(kfs.values(), key=lambda k: int(np.isfinite(k.points_c[:, 2]).sum()))
     fx, fy, cx, cy = intrinsics_from_keyframe(ref.uv, ref.points_c)
     camera = PinholeCamera(fx, fy, cx, cy)
-    uv = np.empty((len(o_kf), 2))
-    depth = np.empty(len(o_kf))
-    octave = np.empty(len(o_kf), np.int64)
-    for k, f in kfs.items():  # gather per keyframe
-        sel = o_kf == k
-        uv[sel] = f.uv[o_kp[sel]]
-        depth[sel] = f.points_c[o_kp[sel], 2]
-        octave[sel] = f.octave[o_kp[sel]]
-    obs = Observations.from_keypoints(uv, depth, octave, bf, mp.scale_factor)
+    obs = gather_observations(kfs, o_kf, o_kp, bf, mp.scale_factor)
     fixed = {int(fixed_kf), int(min(mp.keyframes))} & set(kfs)
     if not fixed:
         fixed = {min(kfs)}
