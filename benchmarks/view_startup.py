@@ -86,22 +86,37 @@ def main() -> int:
             threading.Thread(target=proc.stdout.read, daemon=True).start()  # keep the pipe drained
             print(f"\n| command | seconds |\n|---|---|\n| `dynslam view` launch -> listening, scene sent | {ready:.2f} |")
             if browser is not None:
-                first = []
+                events: dict[str, float] = {}
+                base = {}
+
+                def masks(img):
+                    px = img.astype(int)
+                    red = np.abs(px - COLORS["estimate"]).max(axis=2) < 60
+                    orange = np.abs(px - COLORS["keyframe"]).max(axis=2) < 50
+                    grey = (px.max(axis=2) - px.min(axis=2) <= 2) & (px[..., 0] >= 115) & (px[..., 0] <= 225)
+                    for m in (red, orange, grey):
+                        m[:320, -360:] = False  # GUI panel
+                        m[:160, :320] = False  # software-rendering notice
+                    return int(red.sum()), int(orange.sum()), int(grey.sum())
 
                 def drawn(img):
-                    red = np.abs(img.astype(int) - COLORS["estimate"]).max(axis=2) < 60
-                    red[:320, -360:] = False  # GUI panel
-                    red[:160, :320] = False  # software-rendering notice
-                    if red.sum() > 200:
-                        first.append((time.perf_counter() - t0, int(red.sum())))
-                        return True
-                    return False
+                    t = time.perf_counter() - t0
+                    r, o, g = masks(img)
+                    if r > 200 and "first" not in events:
+                        events["first"], base["grey"] = t, g
+                    if "first" in events and o > 300 and "keyframes" not in events:
+                        events["keyframes"] = t
+                    if "first" in events and g > base["grey"] + 20000 and "dense" not in events:
+                        events["dense"] = t
+                    return len(events) == 3
 
-                _, shots = browser.poll_screenshots(f"http://127.0.0.1:{port}/", drawn, timeout=60)
-                label = "not within 60 s" if not first else f"{first[0][0]:.2f}"
-                print(f"| `dynslam view` launch -> first screenshot showing the trajectory | {label} |")
-                print(f"\n(headless Chromium, SwiftShader software WebGL; {shots} screenshots polled"
-                      + (f"; {first[0][1]} trajectory-coloured pixels in the first picture)" if first else ")"))
+                _, shots = browser.poll_screenshots(f"http://127.0.0.1:{port}/", drawn, timeout=90, interval=0.05)
+                labels = {"first": "first picture (trajectories)", "keyframes": "keyframe frustums drawn",
+                          "dense": "dense map drawn"}
+                for key, label in labels.items():
+                    v = f"{events[key]:.2f}" if key in events else "not within 90 s"
+                    print(f"| `dynslam view` launch -> {label} | {v} |")
+                print(f"\n(headless Chromium, SwiftShader software WebGL; {shots} screenshots polled)")
             else:
                 print("(chromium not installed: time to the first picture not measured)")
             proc.terminate()

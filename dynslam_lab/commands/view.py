@@ -41,6 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     import threading
     import time
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_dense_points < 0:
         raise ValueError(f"--max-dense-points must be >= 0, got {args.max_dense_points}")
     t0 = time.perf_counter()
-    data = load_run(args.outdir, ground_truth=args.gt)
+    data = load_run(args.outdir, ground_truth=args.gt, dense=False)  # map.ply is read in the background
     t_load = time.perf_counter() - t0
     server, handles = start_viewer(data, port=args.port, host=args.host,
                                    config=SceneConfig(max_dense_points=args.max_dense_points))
@@ -59,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
         f"dynslam view: {args.outdir}: {len(data.trajectory) if data.trajectory is not None else 0} poses, "
         f"{data.n_keyframes} keyframes, "
         f"{0 if data.map_xyz is None else len(data.map_xyz)} map points, "
-        f"{0 if data.dense_xyz is None else len(data.dense_xyz)} dense points "
-        f"(loaded in {t_load:.2f} s, scene built in {handles.build_seconds:.2f} s)"
+        f"{data.dense_count} dense points "
+        f"(loaded in {t_load:.2f} s, first layers sent in {handles.build_seconds:.2f} s; keyframes, "
+        f"sparse and dense maps follow once a browser connects)"
     )
     print(f"dynslam view: open http://{server.get_host()}:{server.get_port()}/  (Ctrl+C to stop)", flush=True)
     stop = threading.Event()
@@ -68,9 +70,18 @@ def run(args: argparse.Namespace) -> int:
     player.start()
     try:
         deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        reported = False
         while deadline is None or time.monotonic() < deadline:
-            time.sleep(0.2)
+            if not reported and handles.wait_complete(0.2):
+                reported = True
+                for err in handles.errors:
+                    print(f"dynslam view: a layer was not shown: {err}", file=sys.stderr, flush=True)
+                print("dynslam view: all layers sent (seconds per stage: "
+                      + ", ".join(f"{x:.2f}" for x in handles.stage_seconds) + ")", flush=True)
+            elif reported:
+                time.sleep(0.2)
     finally:
         stop.set()
+        handles.close()
         server.stop()
     return 0

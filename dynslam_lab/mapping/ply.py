@@ -24,11 +24,12 @@ colour, and any extra vertex properties (ignored).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_ply", "read_ply", "PlyError"]
+__all__ = ["write_ply", "read_ply", "read_ply_header", "PlyHeader", "PlyError"]
 
 # PLY scalar type names -> numpy dtypes (both the classic and the sized spellings).
 _PLY_TYPES = {
@@ -102,18 +103,30 @@ def write_ply(
     return path
 
 
-def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read the vertices of a PLY file.
+@dataclass(frozen=True)
+class PlyHeader:
+    """What a PLY header says about the vertex element.
 
-    Parameters
-    ----------
-    path : a PLY file (ASCII, binary little- or big-endian) whose first element is
-        ``vertex`` with ``x y z`` properties; other elements after it (faces) are ignored.
+    Attributes: ``format`` (``ascii``, ``binary_little_endian`` or ``binary_big_endian``),
+    ``n_vertex``, ``properties`` (``(name, numpy type code)`` in file order), ``data_offset``
+    (byte where the vertex data starts).
+    """
 
-    Returns
-    -------
-    xyz : ``(N, 3)`` float64 coordinates.
-    rgb : ``(N, 3)`` uint8 colours, or None when the file has no ``red green blue``.
+    format: str
+    n_vertex: int
+    properties: tuple[tuple[str, str], ...]
+    data_offset: int
+
+    @property
+    def has_color(self) -> bool:
+        return {"red", "green", "blue"} <= {p[0] for p in self.properties}
+
+
+def read_ply_header(path: str | Path) -> PlyHeader:
+    """Parse and check the header of a PLY file (cheap: the vertex data is not read).
+
+    Raises :class:`PlyError` naming the file for a missing file, a file that is not PLY, an
+    unknown format or type, or a vertex element without ``x y z``.
     """
     path = Path(path)
     if not path.is_file():
@@ -149,20 +162,43 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
                 if words[1] not in _PLY_TYPES:
                     raise PlyError(f"{path}: unknown PLY type {words[1]!r}")
                 props.append((words[2], _PLY_TYPES[words[1]]))
-        if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-            raise PlyError(f"{path}: unknown PLY format {fmt!r}")
-        if n_vertex is None:
-            raise PlyError(f"{path}: no 'element vertex' in the header")
-        names = [p[0] for p in props]
-        if not {"x", "y", "z"} <= set(names):
-            raise PlyError(f"{path}: vertex element lacks x, y, z properties (has {names})")
-        if fmt == "ascii":
+        offset = fh.tell()
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise PlyError(f"{path}: unknown PLY format {fmt!r}")
+    if n_vertex is None:
+        raise PlyError(f"{path}: no 'element vertex' in the header")
+    names = [p[0] for p in props]
+    if not {"x", "y", "z"} <= set(names):
+        raise PlyError(f"{path}: vertex element lacks x, y, z properties (has {names})")
+    return PlyHeader(fmt, n_vertex, tuple(props), offset)
+
+
+def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read the vertices of a PLY file.
+
+    Parameters
+    ----------
+    path : a PLY file (ASCII, binary little- or big-endian) whose first element is
+        ``vertex`` with ``x y z`` properties; other elements after it (faces) are ignored.
+
+    Returns
+    -------
+    xyz : ``(N, 3)`` float64 coordinates.
+    rgb : ``(N, 3)`` uint8 colours, or None when the file has no ``red green blue``.
+    """
+    path = Path(path)
+    head = read_ply_header(path)
+    n_vertex, props = head.n_vertex, head.properties
+    names = [p[0] for p in props]
+    with path.open("rb") as fh:
+        fh.seek(head.data_offset)
+        if head.format == "ascii":
             data = np.loadtxt(fh, dtype=np.float64, max_rows=n_vertex, ndmin=2)
             if n_vertex and data.shape != (n_vertex, len(props)):
                 raise PlyError(f"{path}: expected {n_vertex} vertex rows of {len(props)} values, got {data.shape}")
             col = {n: data[:, i] if n_vertex else np.zeros(0) for i, n in enumerate(names)}
         else:
-            order = "<" if fmt == "binary_little_endian" else ">"
+            order = "<" if head.format == "binary_little_endian" else ">"
             dtype = np.dtype([(n, order + t) for n, t in props])
             raw = fh.read(dtype.itemsize * n_vertex)
             if len(raw) != dtype.itemsize * n_vertex:
@@ -171,6 +207,6 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
             col = {n: rec[n] for n in names}
     xyz = np.stack([col["x"], col["y"], col["z"]], axis=1).astype(np.float64)
     rgb = None
-    if {"red", "green", "blue"} <= set(names):
+    if head.has_color:
         rgb = np.stack([col["red"], col["green"], col["blue"]], axis=1).astype(np.uint8)
     return xyz, rgb

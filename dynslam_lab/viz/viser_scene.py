@@ -14,9 +14,14 @@ What ``dynslam view OUTDIR`` shows and what a notebook embeds with :func:`show_i
   pose, and the thumbnail of the newest keyframe at or before it.
 
 Everything goes to the browser in a few large messages (one point cloud per layer, one
-line-segment set per polyline family, the path thinned to ``max_path_points``), and the
-dense map, by far the largest layer, follows ``defer_dense`` seconds after the first browser
-connects, so the first picture does not wait for it (``benchmarks/view_startup.py``).
+line-segment set per polyline family, the path thinned to ``max_path_points``), and in stages,
+so that the first picture does not wait for the large layers (``benchmarks/view_startup.py``):
+
+1. at once: the trajectories, loop edges, the playback frustum and the GUI;
+2. ``defer_layers`` seconds after the first browser connects: the keyframes (wireframes and
+   thumbnails) and the sparse map;
+3. ``defer_dense`` seconds later: the dense map, which :func:`load_run` can leave on disk
+   (``dense=False``) to be read in the background while the server already answers.
 
 Conventions: poses ``T_w_c`` map camera to world (OpenCV camera axes: x right, y down,
 z forward, which is also viser's frustum convention). Quaternions are ``x y z w`` in TUM
@@ -80,11 +85,22 @@ class SceneConfig:
     point_size_dense: float = 0.012  # metres (ours; ~ the dense map's 2 cm voxels)
     max_dense_points: int = 1_000_000  # dense points sent at most, random subset with seed 0 (ours)
     max_image_frustums: int = 40  # keyframes shown with their thumbnail at start-up (ours)
-    defer_dense: float = 1.0  # seconds after the first browser connects before the dense map is sent (0 = at once; ours)
+    defer_layers: float = 2.0  # seconds after the first browser connects before keyframes and sparse map are sent (ours)
+    defer_dense: float = 2.0  # seconds after those before the dense map is sent (ours; both 0 = all at once)
     max_path_points: int = 3000  # trajectory vertices drawn at most, evenly spaced (playback keeps all; ours)
     fov_y: float = float(2 * np.arctan(240 / 525))  # radians, vertical field of view, 49 deg (Kinect, f = 525 px)
     aspect: float = 4 / 3  # width / height of frustums (640 x 480)
     gui: bool = True  # add the playback slider and layer toggles (False for a static notebook embed)
+
+    def __post_init__(self) -> None:
+        for name in ("frustum_scale", "trajectory_thickness", "point_size_sparse", "point_size_dense", "fov_y", "aspect"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SceneConfig.{name} must be > 0, got {getattr(self, name)}")
+        for name in ("max_dense_points", "max_image_frustums", "defer_layers", "defer_dense"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"SceneConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.max_path_points < 2:
+            raise ValueError(f"SceneConfig.max_path_points must be >= 2, got {self.max_path_points}")
 
 
 @dataclass
@@ -101,7 +117,9 @@ class RunData:
     loop_edges : ``(L, 2)`` keyframe ids.
     map_xyz, map_rgb : sparse map points ``(M, 3)`` metres, ``(M, 3)`` uint8 (``map_points.npz``).
     dynamic_xyz : ``(D, 3)`` keypoints judged dynamic (``dynamic_points.npz``).
-    dense_xyz, dense_rgb : dense static map (``map.ply``).
+    dense_xyz, dense_rgb : dense static map (``map.ply``); None until read when
+        :func:`load_run` was told ``dense=False`` (then :meth:`load_dense` reads it).
+    dense_path, dense_count : ``map.ply`` and its number of points (from its header).
     thumbs : keyframe id -> thumbnail path (``thumbs/KFID.jpg``).
     """
 
@@ -118,12 +136,21 @@ class RunData:
     dynamic_xyz: np.ndarray | None = None
     dense_xyz: np.ndarray | None = None
     dense_rgb: np.ndarray | None = None
+    dense_path: Path | None = None
+    dense_count: int = 0
     thumbs: dict[int, Path] = field(default_factory=dict)
     summary: dict = field(default_factory=dict)
 
     @property
     def n_keyframes(self) -> int:
         return 0 if self.kf_ids is None else len(self.kf_ids)
+
+    def load_dense(self) -> None:
+        """Read ``map.ply`` now if it was left on disk (no-op otherwise)."""
+        from ..mapping.ply import read_ply
+
+        if self.dense_xyz is None and self.dense_path is not None:
+            self.dense_xyz, self.dense_rgb = read_ply(self.dense_path)
 
 
 # ---------------------------------------------------------------------------- loading
@@ -138,7 +165,7 @@ def _load_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray] | 
     return data
 
 
-def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = None) -> RunData:
+def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = None, dense: bool = True) -> RunData:
     """Read a ``dynslam run`` output folder (layout in ``docs/architecture.md``).
 
     Parameters
@@ -149,8 +176,11 @@ def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = 
         ``groundtruth.txt`` of the sequence named in ``summary.json`` (key ``sequence``) or
         ``OUTDIR/groundtruth.txt`` is used if present. It is aligned (SE(3), Umeyama) into the
         estimate's frame.
+    dense : read ``map.ply`` now (True), or check its header only and leave the points for
+        :meth:`RunData.load_dense` (False: what ``dynslam view`` does, so that the server
+        starts before a large map is read).
     """
-    from ..mapping.ply import read_ply
+    from ..mapping.ply import read_ply, read_ply_header
 
     outdir = Path(outdir)
     if not outdir.is_dir():
@@ -183,13 +213,16 @@ def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = 
     if dp is not None:
         run.dynamic_xyz = dp["xyz"].reshape(-1, 3).astype(np.float64)
     if (outdir / "map.ply").is_file():
-        run.dense_xyz, run.dense_rgb = read_ply(outdir / "map.ply")
+        run.dense_path = outdir / "map.ply"
+        run.dense_count = read_ply_header(run.dense_path).n_vertex
+        if dense:
+            run.dense_xyz, run.dense_rgb = read_ply(run.dense_path)
     thumbs_dir = outdir / "thumbs"
     if thumbs_dir.is_dir():
         for p in thumbs_dir.glob("*.jpg"):
             if p.stem.isdigit():
                 run.thumbs[int(p.stem)] = p
-    if all(x is None for x in (run.trajectory, run.kf_poses, run.map_xyz, run.dense_xyz)):
+    if all(x is None for x in (run.trajectory, run.kf_poses, run.map_xyz, run.dense_path)):
         raise FileNotFoundError(
             f"{outdir}: nothing to show (no trajectory.txt, keyframes.npz, map_points.npz or map.ply)"
         )
@@ -322,12 +355,15 @@ class SceneHandles:
 
     Attributes
     ----------
-    nodes : layer name -> viser scene handle (``dense`` appears once it has been sent).
+    nodes : layer name -> viser scene handle; layers of the later stages (``keyframes``,
+        ``kf<ID>`` thumbnails, ``sparse``, ``dynamic``, ``dense``) appear once sent.
     slider, play : the playback GUI controls (None without GUI).
-    build_seconds : time :func:`build_scene` took.
+    build_seconds : time :func:`build_scene` took (the first stage only).
     frame_poses : ``(N, 4, 4)`` poses the playback steps through.
     on_frame : callback moving the playback to a frame index.
-    deferred : callbacks holding back layers until after the first picture.
+    deferred : the stages not sent yet, in order: ``(delay seconds, [send callables])``.
+    visible : layer name -> whether its "Show" box is ticked (applied to late layers too).
+    stage_seconds : time each sent stage took (``first``, then one entry per later stage).
     """
 
     nodes: dict = field(default_factory=dict)
@@ -336,12 +372,80 @@ class SceneHandles:
     build_seconds: float = 0.0
     frame_poses: np.ndarray | None = None
     on_frame: Callable[[int], None] | None = None
-    deferred: list[Callable[[], None]] = field(default_factory=list)
+    deferred: list[tuple[float, list[Callable[[], None]]]] = field(default_factory=list)
+    visible: dict[str, bool] = field(default_factory=dict)
+    stage_seconds: list[float] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _complete: threading.Event = field(default_factory=threading.Event, repr=False)
+    _stop: threading.Event = field(default_factory=threading.Event, repr=False)
+    _stream_started: bool = field(default=False, repr=False)
+
+    def close(self) -> None:
+        """Stop sending held-back stages (call before stopping the server)."""
+        self._stop.set()
+
+    def send_next_stage(self) -> bool:
+        """Send the next held-back stage now; False when everything has been sent."""
+        with self._lock:
+            if not self.deferred:
+                self._complete.set()
+                return False
+            _, sends = self.deferred.pop(0)
+            t = time.perf_counter()
+            for send in sends:
+                try:
+                    send()
+                except Exception as exc:  # one broken layer (a corrupt map.ply) must not stop the viewer
+                    self.errors.append(f"{getattr(send, '__name__', 'layer')}: {exc}")
+            self.stage_seconds.append(time.perf_counter() - t)
+            if not self.deferred:
+                self._complete.set()
+            return True
 
     def add_deferred(self) -> None:
-        """Send what was held back for after the first picture (the dense map) now."""
-        for send in self.deferred:
-            send()
+        """Send every held-back stage now (keyframes, sparse and dense maps)."""
+        while self.send_next_stage():
+            pass
+
+    def wait_complete(self, timeout: float | None = None) -> bool:
+        """Block until every stage has been sent; False if ``timeout`` (s) ran out first."""
+        return self._complete.wait(timeout)
+
+    def stream(self, stop: threading.Event | None = None) -> None:
+        """Send the held-back stages one after another, each after its delay (a thread's target)."""
+        stop = stop or self._stop
+        while True:
+            with self._lock:
+                if not self.deferred:
+                    self._complete.set()
+                    return
+                delay = self.deferred[0][0]
+            if stop.wait(delay):
+                return
+            self.send_next_stage()
+
+    def start_stream(self) -> None:
+        """Start sending the held-back stages in a background thread (once; later calls do nothing)."""
+        with self._lock:
+            if self._stream_started:
+                return
+            self._stream_started = True
+        threading.Thread(target=self.stream, name="dynslam-view-stream", daemon=True).start()
+
+    def layer(self, key: str, handle) -> None:
+        """Record a node added for layer ``key`` and give it the layer's visibility."""
+        self.nodes[key] = handle
+        group = "keyframes" if key.startswith("kf") else key
+        if not self.visible.get(group, True):
+            handle.visible = False
+
+    def set_visible(self, group: str, on: bool) -> None:
+        """Show or hide a layer (``keyframes`` includes the thumbnail frustums)."""
+        self.visible[group] = bool(on)
+        for key, node in list(self.nodes.items()):
+            if key == group or (group == "keyframes" and key.startswith("kf")):
+                node.visible = bool(on)
 
     def set_frame(self, i: int) -> None:
         """Move the playback to frame ``i`` (what the slider does)."""
@@ -361,6 +465,13 @@ def _thumb(path: Path) -> np.ndarray | None:
 def build_scene(server, run: RunData, config: SceneConfig | None = None) -> SceneHandles:
     """Add a run's layers (and the playback GUI) to a viser server.
 
+    The trajectories, loop edges, playback frustum and GUI are sent at once. With the GUI on
+    and a delay configured, the keyframes and sparse map follow ``config.defer_layers``
+    seconds after the first browser connects and the dense map ``config.defer_dense`` seconds
+    after them (a large ``map.ply`` left on disk by ``load_run(..., dense=False)`` is read in
+    a background thread meanwhile); otherwise (notebook embeds) everything is sent before this
+    returns. :meth:`SceneHandles.add_deferred` sends what is left at any time.
+
     Parameters
     ----------
     server : ``viser.ViserServer``.
@@ -375,56 +486,33 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
     t0 = time.perf_counter()
     h = SceneHandles()
     scene = server.scene
+    if run.trajectory is None and run.kf_poses is None and run.map_xyz is None:
+        run.load_dense()  # the dense map is all there is: it sets the view
     scene.set_up_direction(tuple(_up_direction(run)))
     eye, target, up = initial_view(run)
     server.initial_camera.position = tuple(eye)
     server.initial_camera.look_at = tuple(target)
     server.initial_camera.up = tuple(up)
+    streaming = config.gui and (config.defer_layers > 0 or config.defer_dense > 0)
 
-    has_dense = run.dense_xyz is not None and len(run.dense_xyz) > 0 and config.max_dense_points > 0
-    if has_dense:
-        xyz, rgb = run.dense_xyz, run.dense_rgb
-        if len(xyz) > config.max_dense_points:
-            idx = np.sort(np.random.default_rng(0).choice(len(xyz), config.max_dense_points, replace=False))
-            xyz, rgb = xyz[idx], (None if rgb is None else rgb[idx])
-        dense_colors = rgb if rgb is not None else np.array([150, 150, 150], np.uint8)
-        dense_xyz = xyz.astype(np.float32)
-        dense_lock = threading.Lock()
-
-        def add_dense() -> None:
-            with dense_lock:
-                if "dense" not in h.nodes:
-                    h.nodes["dense"] = scene.add_point_cloud(
-                        "/map/dense", dense_xyz, dense_colors, point_size=config.point_size_dense,
-                        point_shape="square", point_shading="flat")
-
-        h.deferred.append(add_dense)
-        if config.defer_dense > 0 and config.gui:
-            # The first picture comes without the (large) dense map; it follows a moment later.
-            @server.on_client_connect
-            def _(_client) -> None:
-                timer = threading.Timer(config.defer_dense, add_dense)
-                timer.daemon = True
-                timer.start()
-        else:
-            add_dense()
-    if run.map_xyz is not None and len(run.map_xyz):
-        colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
-        h.nodes["sparse"] = scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
-                                                  point_size=config.point_size_sparse, point_shading="flat")
-    if run.dynamic_xyz is not None and len(run.dynamic_xyz):
-        h.nodes["dynamic"] = scene.add_point_cloud("/map/sparse_dynamic", run.dynamic_xyz.astype(np.float32),
-                                                   np.array(COLORS["dynamic"], np.uint8),
-                                                   point_size=config.point_size_sparse, point_shading="flat")
+    # ---- stage 1: the trajectories and loop edges (small, and what the first picture shows)
     for key, traj in (("ground_truth", run.ground_truth), ("estimate", run.trajectory)):
         if traj is not None and len(traj) >= 2:
-            h.nodes[key] = scene.add_line_segments(
-                f"/trajectory/{key}", polyline_segments(traj.positions, config.max_path_points).astype(np.float32), COLORS[key],
-                thickness=config.trajectory_thickness, thickness_units="screen")
-    if run.kf_poses is not None and len(run.kf_poses):
+            h.layer(key, scene.add_line_segments(
+                f"/trajectory/{key}", polyline_segments(traj.positions, config.max_path_points).astype(np.float32),
+                COLORS[key], thickness=config.trajectory_thickness, thickness_units="screen"))
+    if run.kf_poses is not None and run.loop_edges is not None and len(run.loop_edges):
+        pos_of = {int(i): p for i, p in zip(run.kf_ids, run.kf_poses[:, :3, 3])}
+        edges = [(pos_of[int(a)], pos_of[int(b)]) for a, b in run.loop_edges if int(a) in pos_of and int(b) in pos_of]
+        if edges:
+            h.layer("loops", scene.add_line_segments("/loops", np.asarray(edges, np.float32), COLORS["loop"],
+                                                     thickness=4.0, thickness_units="screen"))
+
+    # ---- stage 2: keyframes and the sparse map
+    def send_keyframes() -> None:
         segs = frustum_segments(run.kf_poses, config.fov_y, config.aspect, config.frustum_scale)
-        h.nodes["keyframes"] = scene.add_line_segments("/keyframes/wireframes", segs.astype(np.float32),
-                                                       COLORS["keyframe"], thickness=1.5, thickness_units="screen")
+        h.layer("keyframes", scene.add_line_segments("/keyframes/wireframes", segs.astype(np.float32),
+                                                     COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
         K = len(run.kf_poses)
         show = np.unique(np.linspace(0, K - 1, min(K, config.max_image_frustums)).round().astype(int))
         wxyz = wxyz_from_matrix(run.kf_poses[:, :3, :3])
@@ -433,18 +521,62 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
             img = _thumb(path) if path is not None else None
             if img is None:
                 continue
-            h.nodes[f"kf{int(run.kf_ids[k])}"] = scene.add_camera_frustum(
+            h.layer(f"kf{int(run.kf_ids[k])}", scene.add_camera_frustum(
                 f"/keyframes/thumbs/{int(run.kf_ids[k])}", fov=config.fov_y, aspect=config.aspect,
                 scale=config.frustum_scale, image=img, wxyz=wxyz[k], position=run.kf_poses[k, :3, 3],
-                color=COLORS["keyframe"], thickness=1.5, thickness_units="screen")
-        if run.loop_edges is not None and len(run.loop_edges):
-            pos_of = {int(i): p for i, p in zip(run.kf_ids, run.kf_poses[:, :3, 3])}
-            edges = [(pos_of[int(a)], pos_of[int(b)]) for a, b in run.loop_edges if int(a) in pos_of and int(b) in pos_of]
-            if edges:
-                h.nodes["loops"] = scene.add_line_segments("/loops", np.asarray(edges, np.float32), COLORS["loop"],
-                                                           thickness=4.0, thickness_units="screen")
+                color=COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
 
-    # Playback: the frames of the trajectory (or the keyframes when there is none).
+    def send_sparse() -> None:
+        if run.map_xyz is not None and len(run.map_xyz):
+            colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
+            h.layer("sparse", scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
+                                                    point_size=config.point_size_sparse, point_shading="flat"))
+        if run.dynamic_xyz is not None and len(run.dynamic_xyz):
+            h.layer("dynamic", scene.add_point_cloud("/map/sparse_dynamic", run.dynamic_xyz.astype(np.float32),
+                                                     np.array(COLORS["dynamic"], np.uint8),
+                                                     point_size=config.point_size_sparse, point_shading="flat"))
+
+    stage2 = []
+    if run.kf_poses is not None and len(run.kf_poses):
+        stage2.append(send_keyframes)
+    if (run.map_xyz is not None and len(run.map_xyz)) or (run.dynamic_xyz is not None and len(run.dynamic_xyz)):
+        stage2.append(send_sparse)
+
+    # ---- stage 3: the dense map (read in the background if it is still on disk)
+    has_dense = (run.dense_xyz is not None and len(run.dense_xyz) > 0) or run.dense_count > 0
+    has_dense = has_dense and config.max_dense_points > 0
+    loader, load_errors = None, []
+    if has_dense and streaming and run.dense_xyz is None:
+        def read_dense() -> None:
+            try:
+                run.load_dense()
+            except Exception as exc:  # reported by send_dense, in the dense layer's place
+                load_errors.append(exc)
+
+        loader = threading.Thread(target=read_dense, name="dynslam-view-read-map.ply", daemon=True)
+        loader.start()
+
+    def send_dense() -> None:
+        if loader is not None:
+            loader.join()
+        if load_errors:
+            raise load_errors[0]
+        run.load_dense()  # no-op when already read
+        xyz, rgb = run.dense_xyz, run.dense_rgb
+        if len(xyz) > config.max_dense_points:
+            idx = np.sort(np.random.default_rng(0).choice(len(xyz), config.max_dense_points, replace=False))
+            xyz, rgb = xyz[idx], (None if rgb is None else rgb[idx])
+        colors = rgb if rgb is not None else np.array([150, 150, 150], np.uint8)
+        h.layer("dense", scene.add_point_cloud("/map/dense", xyz.astype(np.float32), colors,
+                                               point_size=config.point_size_dense, point_shape="square",
+                                               point_shading="flat"))
+
+    if stage2:
+        h.deferred.append((config.defer_layers, stage2))
+    if has_dense:
+        h.deferred.append((config.defer_dense, [send_dense]))
+
+    # ---- playback: the frames of the trajectory (or the keyframes when there is none)
     if run.trajectory is not None and len(run.trajectory):
         poses, stamps = run.trajectory.poses, run.trajectory.timestamps
     elif run.kf_poses is not None and len(run.kf_poses):
@@ -499,17 +631,29 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
             def _(_event) -> None:
                 on_frame(h.slider.value)
 
-            for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
-                if key in h.nodes or (key == "dense" and has_dense):
-                    cb = gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
+    if config.gui:
+        present = set(h.nodes)
+        if run.kf_poses is not None and len(run.kf_poses):
+            present.add("keyframes")
+        if run.map_xyz is not None and len(run.map_xyz):
+            present.add("sparse")
+        if run.dynamic_xyz is not None and len(run.dynamic_xyz):
+            present.add("dynamic")
+        if has_dense:
+            present.add("dense")
+        for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
+            if key in present:
+                cb = server.gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
+                cb.on_update(lambda _event, key=key, cb=cb: h.set_visible(key, cb.value))
 
-                    def toggle(_event, key=key, cb=cb) -> None:
-                        node = h.nodes.get(key)
-                        if node is not None:
-                            node.visible = cb.value
-
-                    cb.on_update(toggle)
     h.build_seconds = time.perf_counter() - t0
+    h.stage_seconds.append(h.build_seconds)
+    if not streaming:
+        h.add_deferred()
+    else:
+        # The first browser starts the stream (viser calls this once the page has reported its
+        # camera, i.e. the 3D canvas is up); later browsers get the layers sent so far at once.
+        server.on_client_connect(lambda _client: h.start_stream())
     return h
 
 
@@ -525,12 +669,12 @@ def start_viewer(run: RunData | str | Path, port: int | None = None, host: str =
                  config: SceneConfig | None = None, verbose: bool = False):
     """Start a viser server on ``host:port`` and build the run's scene in it.
 
-    Returns ``(server, handles)``; stop the server with ``server.stop()``.
+    Returns ``(server, handles)``; stop with ``handles.close()`` and ``server.stop()``.
     """
     import viser
 
     if not isinstance(run, RunData):
-        run = load_run(run)
+        run = load_run(run, dense=False)  # a large map.ply is read while the first layers are on screen
     server = viser.ViserServer(host=host, port=port if port is not None else free_port(host), verbose=verbose)
     handles = build_scene(server, run, config)
     return server, handles

@@ -94,3 +94,42 @@ def test_dynslam_view_renders_the_trajectory(tmp_path):
     near = (np.hypot(xs[None] - samples[:, :1], ys[None] - samples[:, 1:]) < 6).any(axis=1)
     print(f"projected samples with a red pixel within 6 px: {near.mean():.2f}")
     assert vis.sum() > 50 and near.mean() > 0.5
+
+
+def _orange_mask(img: np.ndarray) -> np.ndarray:
+    orange = np.abs(img.astype(int) - COLORS["keyframe"]).max(axis=2) < 50
+    orange[:320, WIN_W - 360 :] = False
+    orange[:160, :320] = False
+    return orange
+
+
+@pytest.mark.slow
+def test_browser_connection_streams_the_later_layers(tmp_path):
+    """The first picture has the trajectories but no keyframes; the browser's connection starts
+    the stream, and the keyframe frustums (orange) appear in a later picture without any call
+    from the test."""
+    if find_chromium() is None:
+        pytest.skip("headless Chromium not installed (Debian package 'chromium'; .ci/run installs it)")
+    from dynslam_lab.viz.viser_scene import SceneConfig, start_viewer
+
+    outdir = write_demo_run(tmp_path / "run", n_frames=150, keyframe_every=10, n_map_points=300, n_dense_points=3000)
+    server, h = start_viewer(outdir, config=SceneConfig(defer_layers=3.0, defer_dense=0.5))
+    try:
+        assert "keyframes" not in h.nodes
+        with HeadlessChromium(WIN_W, WIN_H) as browser:
+            shots = []
+
+            def keyframes_drawn(img):
+                shots.append((int(_red_mask(img).sum()), int(_orange_mask(img).sum())))
+                return shots[-1][1] > 300
+
+            img, n = browser.poll_screenshots(f"http://127.0.0.1:{server.get_port()}/", keyframes_drawn, timeout=90)
+        red_first = [i for i, (r, _) in enumerate(shots) if r > 200]
+        print("screenshots (red, orange pixels):", shots)
+        assert red_first, "the trajectory never appeared"
+        assert shots[red_first[0]][1] < 50, "keyframes were drawn in the first picture: they should come later"
+        assert shots[-1][1] > 300, "the keyframes never arrived: the browser's connection did not start the stream"
+        assert h.wait_complete(30) and "dense" in h.nodes and h.errors == []
+    finally:
+        h.close()
+        server.stop()

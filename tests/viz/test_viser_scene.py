@@ -105,6 +105,85 @@ def test_scene_nodes_and_playback(demo):
         server.stop()
 
 
+def test_layers_stream_in_stages(demo):
+    """Stages follow each other with their delays once started (a browser's connection starts
+    them: tests/viz/test_view_browser.py checks that with a real browser)."""
+    import time
+
+    cfg = SceneConfig(max_image_frustums=3, defer_layers=0.4, defer_dense=0.4)
+    server, h = start_viewer(demo, config=cfg)
+    try:
+        first = {"estimate", "ground_truth", "loops", "current"}
+        assert first <= set(h.nodes)
+        assert not {"keyframes", "sparse", "dynamic", "dense"} & set(h.nodes)
+        time.sleep(1.0)  # nothing more is sent while no browser is there
+        assert "keyframes" not in h.nodes and not h.wait_complete(0)
+        h.start_stream()
+        h.start_stream()  # a second browser does not start a second stream
+        t0 = time.monotonic()
+        while len(h.stage_seconds) < 2 and time.monotonic() - t0 < 10:  # stage 2 sent
+            time.sleep(0.02)
+        t_kf = time.monotonic() - t0
+        assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes and "dense" not in h.nodes
+        assert h.wait_complete(10)
+        t_dense = time.monotonic() - t0
+        assert 0.3 < t_kf < 5 and t_dense - t_kf > 0.3, (t_kf, t_dense)
+        assert h.errors == [] and len(h.stage_seconds) == 3
+        assert np.asarray(h.nodes["dense"].points).shape == (5000, 3)
+    finally:
+        h.close()
+        server.stop()
+
+
+def test_hidden_layers_stay_hidden_when_they_arrive(demo):
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=3))
+    try:
+        h.set_visible("keyframes", False)
+        h.set_visible("estimate", False)
+        assert h.nodes["estimate"].visible is False
+        h.add_deferred()
+        assert h.nodes["keyframes"].visible is False
+        assert all(h.nodes[k].visible is False for k in h.nodes if k.startswith("kf"))
+        assert h.nodes["dense"].visible is True
+    finally:
+        server.stop()
+
+
+def test_dense_map_read_lazily_and_errors_kept_to_its_layer(demo, tmp_path):
+    import shutil
+
+    from dynslam_lab.mapping.ply import PlyError, read_ply
+
+    run = load_run(demo, dense=False)
+    assert run.dense_xyz is None and run.dense_count == 5000
+    run.load_dense()
+    xyz, rgb = read_ply(demo / "map.ply")
+    np.testing.assert_array_equal(run.dense_xyz, xyz)
+    # a map.ply cut short: the header is fine, so the viewer starts; the dense layer reports the error
+    bad = tmp_path / "run"
+    shutil.copytree(demo, bad)
+    data = (bad / "map.ply").read_bytes()
+    (bad / "map.ply").write_bytes(data[: len(data) // 2])
+    server, h = start_viewer(bad, config=SceneConfig(max_image_frustums=0))
+    try:
+        h.add_deferred()
+        assert "dense" not in h.nodes and "keyframes" in h.nodes
+        assert len(h.errors) == 1 and "map.ply: truncated" in h.errors[0]
+    finally:
+        server.stop()
+    # a header that is not PLY at all is refused when the run is loaded, naming the file
+    (bad / "map.ply").write_bytes(b"not a ply file\n")
+    with pytest.raises(PlyError, match="map.ply: not a PLY file"):
+        load_run(bad, dense=False)
+
+
+def test_scene_config_errors():
+    with pytest.raises(ValueError, match="SceneConfig.defer_dense"):
+        SceneConfig(defer_dense=-1)
+    with pytest.raises(ValueError, match="SceneConfig.max_path_points"):
+        SceneConfig(max_path_points=1)
+
+
 def test_dense_cap_is_a_seeded_subset(demo):
     import viser
 
