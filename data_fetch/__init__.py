@@ -8,7 +8,7 @@ and notebooks run on synthetic sequences and on the small files in ``../shared/d
 
 from .catalog import BASE_URLS, CATALOG, CatalogError, Entry, get_entry, url_for
 from .download import ChecksumError, DownloadError, DownloadResult, download, sha256_file
-from .extract import UnsafeArchiveError, safe_extract
+from .extract import CorruptArchiveError, UnsafeArchiveError, safe_extract
 from .fetch import FetchResult, fetch, read_manifest
 
 __all__ = [
@@ -24,6 +24,7 @@ __all__ = [
     "download",
     "sha256_file",
     "UnsafeArchiveError",
+    "CorruptArchiveError",
     "safe_extract",
     "FetchResult",
     "fetch",

@@ -79,7 +79,8 @@ class Entry:
 
 
 # --------------------------------------------------------------------------------------
-# TUM RGB-D: sequence names as they appear in the official file names.
+# TUM RGB-D: sequence names as they appear in the official file names; the 47 sequences of the
+# dataset's download page (its *_validation and calibration archives are not listed).
 TUM_SEQUENCES = {
     1: ["xyz", "rpy", "360", "floor", "desk", "desk2", "room", "plant", "teddy"],
     2: [
@@ -99,7 +100,7 @@ TUM_SEQUENCES = {
     ],
 }
 
-# Bonn RGB-D Dynamic: the 24 dynamic sequences plus the static and kidnapping ones.
+# Bonn RGB-D Dynamic: the 24 dynamic and 2 static sequences of the project page (rgbd_bonn_NAME.zip).
 BONN_SEQUENCES = [
     "balloon", "balloon2", "balloon_tracking", "balloon_tracking2",
     "crowd", "crowd2", "crowd3",
@@ -114,6 +115,15 @@ BONN_SEQUENCES = [
     "static", "static_close_far",
 ]
 
+_TUM_LICENCE = "CC BY 4.0 (TUM RGB-D benchmark, Sturm et al. 2012)"
+_BONN_LICENCE = "Bonn RGB-D Dynamic dataset (Palazzolo et al. 2019), see the project page for terms"
+_NANODET_LICENCE = "Apache-2.0 (RangiLyu NanoDet)"
+_NANODET_M_NOTE = (
+    "the NanoDet releases ship no NanoDet-m ONNX file (v0.0.1 has ncnn models; the "
+    "PyTorch weights are linked from the README's legacy model zoo). Export it from a "
+    "NanoDet checkout: `python tools/export_onnx.py --cfg_path CONFIG --model_path "
+    "nanodet_m.ckpt`, or use nanodet_plus_m_320 (downloadable)."
+)
 _ULTRALYTICS_NOTE = (
     "no official ONNX download; export it yourself (pip install ultralytics): "
     "`yolo export model={stem}.pt format=onnx`{extra}. Ultralytics weights are AGPL-3.0: "
@@ -122,74 +132,36 @@ _ULTRALYTICS_NOTE = (
 )
 
 
-def _build() -> dict[str, Entry]:
-    cat: dict[str, Entry] = {}
+def _rows():
+    """One ``(name, kind, source, path, licence, note)`` row per catalog entry."""
     for n, names in TUM_SEQUENCES.items():
         for s in names:
-            cat[f"fr{n}_{s}"] = Entry(
-                name=f"fr{n}_{s}",
-                kind="tum",
-                source="tum",
-                path=f"freiburg{n}/rgbd_dataset_freiburg{n}_{s}.tgz",
-                licence="CC BY 4.0 (TUM RGB-D benchmark, Sturm et al. 2012)",
-                note=f"TUM RGB-D freiburg{n}/{s}",
-            )
+            path = f"freiburg{n}/rgbd_dataset_freiburg{n}_{s}.tgz"
+            yield f"fr{n}_{s}", "tum", "tum", path, _TUM_LICENCE, f"TUM RGB-D freiburg{n}/{s}"
     for s in BONN_SEQUENCES:
-        cat[f"bonn_{s}"] = Entry(
-            name=f"bonn_{s}",
-            kind="bonn",
-            source="bonn",
-            path=f"rgbd_bonn_{s}.zip",
-            licence="Bonn RGB-D Dynamic dataset (Palazzolo et al. 2019), see the project page for terms",
-            note=f"Bonn RGB-D Dynamic {s}",
-        )
+        yield f"bonn_{s}", "bonn", "bonn", f"rgbd_bonn_{s}.zip", _BONN_LICENCE, f"Bonn RGB-D Dynamic {s}"
     for v, size_note in (("nano", "416x416"), ("tiny", "416x416"), ("s", "640x640")):
-        cat[f"yolox_{v}"] = Entry(
-            name=f"yolox_{v}",
-            kind="model",
-            source="yolox",
-            path=f"yolox_{v}.onnx",
-            licence="Apache-2.0 (Megvii YOLOX)",
-            note=f"YOLOX-{v.capitalize()} COCO detector, input {size_note} BGR 0..255",
-        )
+        note = f"YOLOX-{v.capitalize()} COCO detector, input {size_note} BGR 0..255"
+        yield f"yolox_{v}", "model", "yolox", f"yolox_{v}.onnx", "Apache-2.0 (Megvii YOLOX)", note
     for res in (320, 416):
-        cat[f"nanodet_plus_m_{res}"] = Entry(
-            name=f"nanodet_plus_m_{res}",
-            kind="model",
-            source="nanodet",
-            path=f"nanodet-plus-m_{res}.onnx",
-            licence="Apache-2.0 (RangiLyu NanoDet)",
-            note=f"NanoDet-Plus-m COCO detector, input {res}x{res}",
-        )
-    cat["nanodet_m"] = Entry(
-        name="nanodet_m",
-        kind="export",
-        source="",
-        path="nanodet_m.onnx",
-        licence="Apache-2.0 (RangiLyu NanoDet)",
-        note=(
-            "the NanoDet releases ship no NanoDet-m ONNX file (v0.0.1 has ncnn models; the "
-            "PyTorch weights are linked from the README's legacy model zoo). Export it from a "
-            "NanoDet checkout: `python tools/export_onnx.py --cfg_path CONFIG --model_path "
-            "nanodet_m.ckpt`, or use nanodet_plus_m_320 (downloadable)."
-        ),
-    )
+        note = f"NanoDet-Plus-m COCO detector, input {res}x{res}"
+        yield f"nanodet_plus_m_{res}", "model", "nanodet", f"nanodet-plus-m_{res}.onnx", _NANODET_LICENCE, note
+    yield "nanodet_m", "export", "", "nanodet_m.onnx", _NANODET_LICENCE, _NANODET_M_NOTE
     for stem, extra in (
         ("yolov8n-seg", " (add imgsz=320 for a 320x320 input)"),
         ("yolov8n", ""),
         ("yolo11n-seg", ""),
         ("yolo11n", ""),
     ):
-        key = stem.replace("-", "_")
-        cat[key] = Entry(
-            name=key,
-            kind="export",
-            source="",
-            path=f"{stem}.onnx",
-            licence="AGPL-3.0 (Ultralytics)",
-            note=_ULTRALYTICS_NOTE.format(stem=stem, extra=extra),
-        )
-    return cat
+        note = _ULTRALYTICS_NOTE.format(stem=stem, extra=extra)
+        yield stem.replace("-", "_"), "export", "", f"{stem}.onnx", "AGPL-3.0 (Ultralytics)", note
+
+
+def _build() -> dict[str, Entry]:
+    return {
+        name: Entry(name=name, kind=kind, source=source, path=path, licence=licence, note=note)
+        for name, kind, source, path, licence, note in _rows()
+    }
 
 
 #: Every fetchable item by name.

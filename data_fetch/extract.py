@@ -13,20 +13,41 @@ checked *before* anything is written, and the whole archive is refused when one 
 
 For tar archives Python's own ``filter="data"`` (PEP 706) is applied on top as a second line
 of defence where the interpreter has it.
+
+A corrupt or truncated archive (a bad CRC in a zip member, a gzip stream that ends early or
+fails its CRC-32 check) raises :class:`CorruptArchiveError` naming the archive. Members are
+first extracted into a hidden staging folder beside them (``DEST/.NAME.extracting``) and
+moved into place only when the whole archive has been read and checked, so a corrupt
+archive leaves nothing half-extracted in ``DEST``. For a ``.tgz`` the gzip stream is read to
+its end, because its CRC-32 and length sit in the last eight bytes.
 """
 
 from __future__ import annotations
 
+import gzip
+import lzma
+import os
+import shutil
 import stat
 import tarfile
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
-__all__ = ["UnsafeArchiveError", "safe_extract", "check_member_name"]
+__all__ = ["UnsafeArchiveError", "CorruptArchiveError", "safe_extract", "check_member_name"]
 
 
 class UnsafeArchiveError(ValueError):
     """The archive contains a member that would be written outside the destination."""
+
+
+class CorruptArchiveError(ValueError):
+    """The archive is damaged or truncated (bad checksum, early end of data)."""
+
+
+#: What the readers raise on damaged data: zip CRC or structure errors, tar header errors,
+#: a compressed stream that ends early (EOFError) or fails its check (gzip, zlib, lzma).
+_CORRUPT = (zipfile.BadZipFile, tarfile.TarError, EOFError, zlib.error, gzip.BadGzipFile, lzma.LZMAError)
 
 
 def check_member_name(name: str, dest: Path, archive: str | Path) -> Path:
@@ -85,6 +106,15 @@ def _check_zip(zf: zipfile.ZipFile, dest: Path, archive: Path) -> list[zipfile.Z
     return infos
 
 
+def _move_into(staging: Path, dest: Path) -> None:
+    """Move every entry extracted into ``staging`` to the same relative place in ``dest``."""
+    for root, dirs, files in os.walk(staging):
+        rel = Path(root).relative_to(staging)
+        (dest / rel).mkdir(parents=True, exist_ok=True)
+        for name in files + [d for d in dirs if (Path(root) / d).is_symlink()]:
+            os.replace(Path(root) / name, dest / rel / name)
+
+
 def safe_extract(archive: str | Path, dest: str | Path) -> list[Path]:
     """Extract a .tgz/.tar.gz/.tar/.zip archive into ``dest`` after checking every member.
 
@@ -103,25 +133,45 @@ def safe_extract(archive: str | Path, dest: str | Path) -> list[Path]:
     UnsafeArchiveError
         A member is absolute, contains ``..``, escapes ``dest`` (directly or through a link),
         or is a device/special file. Nothing is extracted in that case.
+    CorruptArchiveError
+        The archive is damaged or truncated. Nothing is extracted in that case.
     ValueError
-        The file is not a tar or zip archive.
+        The file is not a tar or zip archive (or is damaged beyond recognition).
     """
     archive = Path(archive)
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     dest = dest.resolve()
-    if zipfile.is_zipfile(archive):
-        with zipfile.ZipFile(archive) as zf:
-            infos = _check_zip(zf, dest, archive)
-            zf.extractall(dest, members=infos)
-            return [dest / i.filename for i in infos if not i.is_dir()]
-    if tarfile.is_tarfile(archive):
-        with tarfile.open(archive, "r:*") as tf:
-            members = _check_tar(tf, dest, archive)
-            if hasattr(tarfile, "data_filter"):
-                tf.extractall(dest, members=members, filter="data")
-            else:  # pragma: no cover - Python without PEP 706
-                tf.extractall(dest, members=members)
-            return [dest / m.name for m in members if m.isfile()]
-    raise ValueError(f"{archive}: not a tar or zip archive")
-
+    staging = dest / f".{archive.name}.extracting"
+    try:
+        if zipfile.is_zipfile(archive):
+            with zipfile.ZipFile(archive) as zf:
+                infos = _check_zip(zf, dest, archive)
+                shutil.rmtree(staging, ignore_errors=True)
+                zf.extractall(staging, members=infos)
+                files = [dest / i.filename for i in infos if not i.is_dir()]
+        elif tarfile.is_tarfile(archive):
+            with tarfile.open(archive, "r:*") as tf:
+                members = _check_tar(tf, dest, archive)
+                shutil.rmtree(staging, ignore_errors=True)
+                if hasattr(tarfile, "data_filter"):
+                    tf.extractall(staging, members=members, filter="data")
+                else:  # pragma: no cover - Python without PEP 706
+                    tf.extractall(staging, members=members)
+                # Read a compressed stream to its end: gzip checks its CRC-32 and length there.
+                while tf.fileobj.read(1 << 20):
+                    pass
+                files = [dest / m.name for m in members if m.isfile()]
+        else:
+            raise ValueError(f"{archive}: not a tar or zip archive (or one damaged beyond recognition)")
+        if staging.exists():
+            _move_into(staging, dest)
+    except getattr(tarfile, "FilterError", ()) as exc:  # PEP 706's filter refused a member we let through
+        raise UnsafeArchiveError(f"{archive}: {exc}; nothing was extracted") from None
+    except _CORRUPT as exc:
+        raise CorruptArchiveError(
+            f"{archive}: corrupt or truncated archive ({exc.__class__.__name__}: {exc}); nothing was extracted"
+        ) from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return files

@@ -1,9 +1,14 @@
 """Fetch one catalog entry: download, verify, extract, record in the manifest.
 
-``DEST/manifest.json`` maps each fetched name to ``{url, file, size, sha256, fetched_at,
-extracted_to}``. When the catalog knows no SHA-256 for an entry, a later fetch of the same
-name is checked against the digest recorded here (a changed file on the server is
-reported, not silently accepted).
+``DEST/manifest.json`` maps each fetched name to ``{url, file, size, sha256, sha256_source,
+licence, fetched_at, extracted_files}``. When the catalog knows no SHA-256 for an entry, a
+later fetch of the same name is checked against the digest recorded here: a re-run verifies
+the file already on disk (a damaged copy is removed and reported), and a new download is
+compared with it (a changed file on the server is reported, not silently accepted).
+
+An archive that turns out corrupt when extracted is removed (it is of no use, and a
+download resumed onto a wrong prefix is the usual cause) and not recorded in the manifest;
+the error names the file and says to run again.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from pathlib import Path
 
 from .catalog import Entry, get_entry, url_for
 from .download import ChecksumError, download
-from .extract import safe_extract
+from .extract import CorruptArchiveError, safe_extract
 
 __all__ = ["FetchResult", "fetch", "read_manifest", "MANIFEST"]
 
@@ -76,7 +81,7 @@ def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: 
 
     Raises
     ------
-    CatalogError, DownloadError, ChecksumError, UnsafeArchiveError
+    CatalogError, DownloadError, ChecksumError, UnsafeArchiveError, CorruptArchiveError
     """
     entry = get_entry(name)
     if entry.kind == "export":
@@ -99,7 +104,11 @@ def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: 
         raise
     extracted: list[Path] = []
     if extract and entry.is_archive:
-        extracted = safe_extract(result.path, dest)
+        try:
+            extracted = safe_extract(result.path, dest)
+        except CorruptArchiveError as exc:
+            result.path.unlink(missing_ok=True)
+            raise CorruptArchiveError(f"{exc}; removed it, run again to download it afresh") from None
     manifest[entry.name] = {
         "url": url,
         "file": str(result.path.relative_to(dest)),
@@ -112,6 +121,10 @@ def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: 
     }
     _write_manifest(dest, manifest)
     msg = f"{entry.name}: {result.size} bytes, sha256 {result.sha256}"
+    if result.existing:
+        checked = {"catalog": "matches the catalog", "manifest": f"matches {dest / MANIFEST}"}
+        verdict = checked.get(manifest[entry.name]["sha256_source"], "nothing to check it against yet")
+        msg += f" (already downloaded; {verdict})"
     if extracted:
         msg += f"; extracted {len(extracted)} files into {dest}"
     return FetchResult(entry, result.path, result.sha256, extracted, msg)

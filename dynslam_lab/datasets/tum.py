@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera, camera_for_sequence
+from ..textfile import data_lines
 from .frame import Frame
 
 __all__ = ["read_file_list", "associate", "load_rgb", "load_depth", "TumSequence", "DatasetError"]
@@ -39,26 +40,19 @@ def read_file_list(path: str | Path, min_fields: int = 2) -> tuple[np.ndarray, l
     naming the file and line number.
     """
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: file not found")
     stamps: list[float] = []
     rows: list[list[str]] = []
-    with path.open("r", encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.replace(",", " ").split()
-            if len(parts) < min_fields:
-                raise DatasetError(f"{path}:{lineno}: expected at least {min_fields} fields, got {len(parts)}: {s!r}")
-            try:
-                ts = float(parts[0])
-            except ValueError:
-                raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]!r} is not a number") from None
-            if not np.isfinite(ts):
-                raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]!r} is not finite")
-            stamps.append(ts)
-            rows.append(parts[1:])
+    for lineno, s, parts in data_lines(path, DatasetError, "file"):
+        if len(parts) < min_fields:
+            raise DatasetError(f"{path}:{lineno}: expected at least {min_fields} fields, got {len(parts)}: {s!r}")
+        try:
+            ts = float(parts[0])
+        except ValueError:
+            raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]!r} is not a number") from None
+        if not np.isfinite(ts):
+            raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]!r} is not finite")
+        stamps.append(ts)
+        rows.append(parts[1:])
     return np.asarray(stamps, dtype=np.float64), rows
 
 
@@ -103,15 +97,20 @@ def associate(first: np.ndarray, second: np.ndarray, max_diff: float = 0.02, off
     return out[np.argsort(a[out[:, 0]], kind="stable")]
 
 
-def load_rgb(path: str | Path) -> np.ndarray:
-    """Read a colour image as ``(H, W, 3)`` uint8 RGB; clear error for a missing or corrupt file."""
+def _imread(path: str | Path, flags: int, what: str) -> np.ndarray:
+    """``cv2.imread`` with a :class:`DatasetError` naming the file when it is missing or undecodable."""
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"{path}: colour image not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        raise DatasetError(f"{path}: {what} not found")
+    img = cv2.imread(str(path), flags)
     if img is None:
-        raise DatasetError(f"{path}: cannot decode colour image (corrupt or not an image)")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        raise DatasetError(f"{path}: cannot decode {what} (corrupt or not an image)")
+    return img
+
+
+def load_rgb(path: str | Path) -> np.ndarray:
+    """Read a colour image as ``(H, W, 3)`` uint8 RGB; clear error for a missing or corrupt file."""
+    return cv2.cvtColor(_imread(path, cv2.IMREAD_COLOR, "colour image"), cv2.COLOR_BGR2RGB)
 
 
 def load_depth(path: str | Path, depth_scale: float = 5000.0) -> np.ndarray:
@@ -121,11 +120,7 @@ def load_depth(path: str | Path, depth_scale: float = 5000.0) -> np.ndarray:
     channel (an 8-bit depth image means a wrong file or a lossy conversion).
     """
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: depth image not found")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise DatasetError(f"{path}: cannot decode depth image (corrupt or not an image)")
+    raw = _imread(path, cv2.IMREAD_UNCHANGED, "depth image")
     if raw.ndim != 2:
         raise DatasetError(f"{path}: depth image must be single-channel, got shape {raw.shape}")
     if raw.dtype != np.uint16:
@@ -269,10 +264,7 @@ class TumSequence:
             raise DatasetError(f"{e.depth}: depth size {depth.shape} differs from colour size {rgb.shape[:2]} ({e.rgb})")
         mask = None
         if e.mask is not None and e.mask.is_file():
-            m = cv2.imread(str(e.mask), cv2.IMREAD_UNCHANGED)
-            if m is None:
-                raise DatasetError(f"{e.mask}: cannot decode instance mask")
-            mask = m.astype(np.int32)
+            mask = _imread(e.mask, cv2.IMREAD_UNCHANGED, "instance mask").astype(np.int32)
         return Frame(
             index=index,
             timestamp=e.ts,

@@ -42,6 +42,7 @@ __all__ = [
     "estimate_fundamental",
     "epipolar_distance",
     "epipolar_check",
+    "pair_inputs",
 ]
 
 
@@ -130,6 +131,37 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     return q, ok
 
 
+def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tuple[np.ndarray, ...]:
+    """The per-keypoint inputs of a two-frame check, as arrays of one length ``N``.
+
+    Parameters
+    ----------
+    where : the calling function, for the error message.
+    uv, uv_prev : ``(N, 2)`` current keypoints and their matches in the previous frame.
+    matched : ``(N,)`` valid pairs (from :func:`track_lk`).
+    exclude : ``(N,)`` pairs on potentially moving objects, or None (none excluded).
+    per_keypoint : further ``(N,)`` float inputs by name (e.g. depths).
+
+    Returns
+    -------
+    ``(uv, uv_prev, matched, exclude, *per_keypoint)``: float64 ``(N, 2)``, float64 ``(N, 2)``,
+    bool ``(N,)``, bool ``(N,)``, then float64 ``(N,)`` in the order given.
+    """
+    uv = check_uv(uv)
+    uv_prev = check_uv(uv_prev, "uv_prev")
+    n = len(uv)
+    arrays = {
+        "uv_prev": uv_prev,
+        "matched": np.asarray(matched, bool).reshape(-1),
+        "exclude": np.zeros(n, bool) if exclude is None else np.asarray(exclude, bool).reshape(-1),
+    }
+    arrays.update({k: np.asarray(v, np.float64).reshape(-1) for k, v in per_keypoint.items()})
+    wrong = [f"{k} {len(v)}" for k, v in arrays.items() if len(v) != n]
+    if wrong:
+        raise ValueError(f"{where}: per-keypoint inputs must have the same length as uv ({n}), got {', '.join(wrong)}")
+    return (uv, *arrays.values())
+
+
 def epipolar_distance(F: np.ndarray, p_prev: np.ndarray, p_cur: np.ndarray) -> np.ndarray:
     """Eqs. 16-17: distance (px) of ``p_cur (N, 2)`` to the epipolar line ``F p_prev``."""
     F = np.asarray(F, np.float64)
@@ -179,13 +211,8 @@ def epipolar_check(
     exclude : ``(N,)`` bool pairs on potentially moving objects (left out of F), or None.
     image_size : ``(H, W)``.
     """
-    uv = check_uv(uv)
-    uv_prev = check_uv(uv_prev, "uv_prev")
+    uv, uv_prev, matched, exclude = pair_inputs("epipolar_check", uv, uv_prev, matched, exclude)
     n = len(uv)
-    matched = np.asarray(matched, bool).reshape(-1)
-    exclude = np.zeros(n, bool) if exclude is None else np.asarray(exclude, bool).reshape(-1)
-    if not (len(uv_prev) == len(matched) == len(exclude) == n):
-        raise ValueError("epipolar_check: uv, uv_prev, matched and exclude must have the same length")
     h, w = image_size
     b = config.border_px
     away = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)

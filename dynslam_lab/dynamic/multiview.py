@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from ..geometry.se3 import make_pose, transform_points
+from .epipolar import pair_inputs
 from .table import check_uv
 
 __all__ = ["MultiViewConfig", "MultiViewResult", "rough_pose", "multiview_check"]
@@ -132,15 +133,10 @@ def multiview_check(
     exclude : ``(N,)`` bool pairs on potentially moving objects, left out of the rough pose.
     camera : :class:`~dynslam_lab.camera.PinholeCamera`.
     """
-    uv = check_uv(uv)
-    uv_prev = check_uv(uv_prev, "uv_prev")
+    uv, uv_prev, matched, exclude, depth_cur, depth_prev = pair_inputs(
+        "multiview_check", uv, uv_prev, matched, exclude, depth_cur=depth_cur, depth_prev=depth_prev
+    )
     n = len(uv)
-    depth_cur = np.asarray(depth_cur, np.float64).reshape(-1)
-    depth_prev = np.asarray(depth_prev, np.float64).reshape(-1)
-    matched = np.asarray(matched, bool).reshape(-1)
-    exclude = np.zeros(n, bool) if exclude is None else np.asarray(exclude, bool).reshape(-1)
-    if not (len(uv_prev) == len(depth_cur) == len(depth_prev) == len(matched) == len(exclude) == n):
-        raise ValueError("multiview_check: all per-keypoint inputs must have the same length as uv")
     reproj = np.full(n, np.nan)
     derr = np.full(n, np.nan)
     inliers = np.zeros(n, bool)

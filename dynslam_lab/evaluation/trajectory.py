@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.se3 import pose_from_tum, pose_to_tum
+from ..textfile import data_lines
 
 __all__ = ["Trajectory", "TrajectoryError", "read_tum_trajectory", "write_tum_trajectory"]
 
@@ -68,31 +69,24 @@ class Trajectory:
 def read_tum_trajectory(path: str | Path) -> Trajectory:
     """Read a TUM trajectory file; clear error naming file and line on a malformed row."""
     path = Path(path)
-    if not path.is_file():
-        raise TrajectoryError(f"{path}: trajectory file not found")
     stamps: list[float] = []
     rows: list[list[float]] = []
-    with path.open("r", encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.replace(",", " ").split()
-            if len(parts) != 8:
-                raise TrajectoryError(
-                    f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', got {len(parts)}"
-                )
-            try:
-                vals = [float(x) for x in parts]
-            except ValueError:
-                raise TrajectoryError(f"{path}:{lineno}: non-numeric value in {s!r}") from None
-            if not np.all(np.isfinite(vals)):
-                raise TrajectoryError(f"{path}:{lineno}: non-finite value in {s!r}")
-            qn = np.linalg.norm(vals[4:8])
-            if qn < 1e-6:
-                raise TrajectoryError(f"{path}:{lineno}: quaternion has zero norm")
-            stamps.append(vals[0])
-            rows.append(vals[1:])
+    for lineno, s, parts in data_lines(path, TrajectoryError, "trajectory file"):
+        if len(parts) != 8:
+            raise TrajectoryError(
+                f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', got {len(parts)}"
+            )
+        try:
+            vals = [float(x) for x in parts]
+        except ValueError:
+            raise TrajectoryError(f"{path}:{lineno}: non-numeric value in {s!r}") from None
+        if not np.all(np.isfinite(vals)):
+            raise TrajectoryError(f"{path}:{lineno}: non-finite value in {s!r}")
+        qn = np.linalg.norm(vals[4:8])
+        if qn < 1e-6:
+            raise TrajectoryError(f"{path}:{lineno}: quaternion has zero norm")
+        stamps.append(vals[0])
+        rows.append(vals[1:])
     if not stamps:
         raise TrajectoryError(f"{path}: no poses in file")
     ts = np.asarray(stamps)

@@ -32,6 +32,8 @@ from scipy.spatial import cKDTree
 __all__ = [
     "TH_LOW",
     "TH_HIGH",
+    "check_descriptors",
+    "hamming_words",
     "hamming_distance",
     "hamming_pairs",
     "knn2",
@@ -45,29 +47,38 @@ TH_LOW = 50  # ORB-SLAM2 ORBmatcher::TH_LOW, bits
 TH_HIGH = 100  # ORB-SLAM2 ORBmatcher::TH_HIGH, bits
 
 
-def _check_desc(d: np.ndarray, name: str) -> np.ndarray:
+def check_descriptors(d: np.ndarray, name: str) -> np.ndarray:
+    """``d`` as a C-contiguous ``(N, 32)`` uint8 array of ORB descriptors; a ``ValueError``
+    naming ``name`` for any other shape or type."""
     d = np.ascontiguousarray(d)
     if d.ndim != 2 or d.shape[1] != 32 or d.dtype != np.uint8:
-        raise ValueError(f"{name}: expected ORB descriptors (N, 32) uint8, got {d.shape} {d.dtype}")
+        raise ValueError(f"{name}: expected ORB descriptors (N, 32) uint8, got shape {d.shape} dtype {d.dtype}")
     return d
+
+
+def hamming_words(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamming distances of descriptors viewed as 64-bit words (``(..., 4)`` uint64, broadcast):
+    the popcount of ``a ^ b`` summed over the last axis, int32. The one kernel behind
+    :func:`hamming_distance`, :func:`hamming_pairs` and the vocabulary's tree descent."""
+    return np.bitwise_count(a ^ b).sum(axis=-1, dtype=np.int32)
 
 
 def hamming_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """All pairwise Hamming distances ``(N, M)`` int32 between descriptors ``a (N, 32)`` and
-    ``b (M, 32)`` uint8. Memory ``N*M*32`` bytes: meant for small sets and for checks; use
-    :func:`knn2` for nearest neighbours of large sets."""
-    a = _check_desc(a, "hamming_distance a").view(np.uint64)
-    b = _check_desc(b, "hamming_distance b").view(np.uint64)
-    return np.bitwise_count(a[:, None, :] ^ b[None, :, :]).sum(axis=-1, dtype=np.int32)
+    ``b (M, 32)`` uint8. Memory ``N*M*32`` bytes: meant for small sets, checks and cluster
+    centres; use :func:`knn2` for nearest neighbours of large sets."""
+    a = check_descriptors(a, "hamming_distance a").view(np.uint64)
+    b = check_descriptors(b, "hamming_distance b").view(np.uint64)
+    return hamming_words(a[:, None, :], b[None, :, :])
 
 
 def hamming_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise Hamming distances ``(K,)`` int32 between ``a[k]`` and ``b[k]`` (both ``(K, 32)``)."""
-    a = _check_desc(a, "hamming_pairs a")
-    b = _check_desc(b, "hamming_pairs b")
+    a = check_descriptors(a, "hamming_pairs a")
+    b = check_descriptors(b, "hamming_pairs b")
     if a.shape != b.shape:
         raise ValueError(f"hamming_pairs: shapes differ, {a.shape} vs {b.shape}")
-    return np.bitwise_count(a.view(np.uint64) ^ b.view(np.uint64)).sum(axis=-1, dtype=np.int32)
+    return hamming_words(a.view(np.uint64), b.view(np.uint64))
 
 
 def knn2(query: np.ndarray, train: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -76,8 +87,8 @@ def knn2(query: np.ndarray, train: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns ``(dist (N, 2) int32, idx (N, 2) int64)``; with a single train descriptor the second
     column is ``(256, -1)``.
     """
-    query = _check_desc(query, "knn2 query")
-    train = _check_desc(train, "knn2 train")
+    query = check_descriptors(query, "knn2 query")
+    train = check_descriptors(train, "knn2 train")
     n = len(query)
     if n == 0 or len(train) == 0:
         return np.full((n, 2), 256, np.int32), np.full((n, 2), -1, np.int64)

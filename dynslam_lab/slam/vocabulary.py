@@ -46,11 +46,14 @@ trained on the project's synthetic scenes (:func:`default_vocabulary`), and
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+from ..features.matching import check_descriptors, hamming_distance, hamming_words
 
 __all__ = [
     "VocabularyConfig",
@@ -94,19 +97,11 @@ class VocabularyConfig:
             )
 
 
-def _check_desc(d: np.ndarray, name: str) -> np.ndarray:
-    d = np.ascontiguousarray(d)
-    if d.ndim != 2 or d.shape[1] != 32 or d.dtype != np.uint8:
-        raise ValueError(f"{name}: expected ORB descriptors (N, 32) uint8, got shape {d.shape} dtype {d.dtype}")
-    return d
-
-
 # --------------------------------------------------------------------------- clustering
 def hamming_to_centres(desc: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Hamming distances ``(N, K)`` int32 from descriptors ``(N, 32)`` to centres ``(K, 32)`` (uint8)."""
-    a = np.ascontiguousarray(desc).view(np.uint64)
-    b = np.ascontiguousarray(centres).view(np.uint64)
-    return np.bitwise_count(a[:, None, :] ^ b[None, :, :]).sum(axis=-1, dtype=np.int32)
+    """Hamming distances ``(N, K)`` int32 from descriptors ``(N, 32)`` to centres ``(K, 32)`` (uint8):
+    :func:`~dynslam_lab.features.matching.hamming_distance` under the name clustering uses."""
+    return hamming_distance(desc, centres)
 
 
 def majority_centres(desc: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
@@ -155,7 +150,7 @@ def k_majority(
     ``max_iterations``. Clusters that end empty are dropped (fewer than ``k`` centres returned,
     labels renumbered), so every returned centre has at least one member.
     """
-    desc = _check_desc(desc, "k_majority")
+    desc = check_descriptors(desc, "k_majority")
     if len(desc) < k:
         raise ValueError(f"k_majority: need at least k={k} descriptors, got {len(desc)}")
     centres = desc[kmeanspp_seeds(desc, k, rng)].copy()
@@ -261,7 +256,7 @@ class Vocabulary:
         The greedy descent of DBoW2: at each node go to the child with the nearest centre
         (ties: the first child). Vectorised over descriptors, one step per tree level.
         """
-        desc = _check_desc(descriptors, "Vocabulary.transform")
+        desc = check_descriptors(descriptors, "Vocabulary.transform")
         node = np.zeros(len(desc), np.int64)
         stop = self.depth if level is None else int(level)
         if not 0 <= stop <= self.depth:
@@ -274,7 +269,7 @@ class Vocabulary:
             if not inner.any():
                 break
             chi = ch[inner]
-            dist = np.bitwise_count(d64[inner][:, None, :] ^ c64[np.maximum(chi, 0)]).sum(axis=-1, dtype=np.int32)
+            dist = hamming_words(d64[inner][:, None, :], c64[np.maximum(chi, 0)])
             dist[chi < 0] = np.iinfo(np.int32).max
             node[inner] = chi[np.arange(len(chi)), np.argmin(dist, axis=1)]
         return node
@@ -307,22 +302,24 @@ class Vocabulary:
         if path.suffix != ".npz":
             path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
         path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {k: getattr(self, k) for k in _ARRAYS}
         np.savez_compressed(
-            path,
-            format_version=np.int64(_FORMAT_VERSION),
-            centres=self.centres,
-            children=self.children,
-            parent=self.parent,
-            level=self.level,
-            node_word=self.node_word,
-            word_node=self.word_node,
-            idf=self.idf,
-            n_images=np.int64(self.n_images),
+            path, format_version=np.int64(_FORMAT_VERSION), n_images=np.int64(self.n_images), **arrays
         )
         return path
 
 
-_KEYS = ("centres", "children", "parent", "level", "node_word", "word_node", "idf", "n_images")
+#: The arrays of a vocabulary file and the dtype each has in a :class:`Vocabulary`.
+_ARRAYS = {
+    "centres": np.uint8,
+    "children": np.int32,
+    "parent": np.int32,
+    "level": np.int32,
+    "node_word": np.int32,
+    "word_node": np.int32,
+    "idf": np.float64,
+}
+_KEYS = (*_ARRAYS, "n_images")
 
 
 def load_vocabulary(path: str | Path) -> Vocabulary:
@@ -350,14 +347,7 @@ def load_vocabulary(path: str | Path) -> Vocabulary:
     if len(a["idf"]) != len(a["word_node"]):
         raise ValueError(f"{path}: idf has {len(a['idf'])} entries for {len(a['word_node'])} words")
     return Vocabulary(
-        centres=a["centres"],
-        children=a["children"].astype(np.int32),
-        parent=a["parent"].astype(np.int32),
-        level=a["level"].astype(np.int32),
-        node_word=a["node_word"].astype(np.int32),
-        word_node=a["word_node"].astype(np.int32),
-        idf=a["idf"].astype(np.float64),
-        n_images=int(a["n_images"]),
+        **{k: a[k].astype(dtype, copy=False) for k, dtype in _ARRAYS.items()}, n_images=int(a["n_images"])
     )
 
 
@@ -404,7 +394,7 @@ def train_vocabulary(
     rng = np.random.default_rng(rng)
     if len(descriptor_sets) == 0:
         raise ValueError("train_vocabulary: no training images given")
-    sets = [_check_desc(d, f"train_vocabulary image {i}") for i, d in enumerate(descriptor_sets)]
+    sets = [check_descriptors(d, f"train_vocabulary image {i}") for i, d in enumerate(descriptor_sets)]
     all_desc = np.concatenate(sets) if sets else np.zeros((0, 32), np.uint8)
     k = config.branching
     if len(all_desc) < k:
@@ -463,13 +453,4 @@ def train_vocabulary(
     pairs = np.unique(words * len(sets) + img_of)
     n_i = np.bincount(pairs // len(sets), minlength=len(word_node))
     idf = np.log(len(sets) / np.maximum(n_i, 1))
-    return Vocabulary(
-        centres=voc.centres,
-        children=voc.children,
-        parent=voc.parent,
-        level=voc.level,
-        node_word=voc.node_word,
-        word_node=voc.word_node,
-        idf=idf,
-        n_images=len(sets),
-    )
+    return dataclasses.replace(voc, idf=idf)

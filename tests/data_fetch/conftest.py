@@ -1,7 +1,8 @@
-"""A local HTTP server (127.0.0.1, free port, thread) with Range support, for download tests."""
+"""A local HTTP server (127.0.0.1, free port, thread) with Range and If-Range support, for download tests."""
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
@@ -15,8 +16,11 @@ class FileServer:
         self.files: dict[str, bytes] = {}
         self.cut_after: dict[str, int] = {}  # path -> bytes sent before dropping (once)
         self.ignore_range = False
+        self.ignore_if_range = False  # a server that resumes whatever the validator says
+        self.send_etag = True  # ETag: a strong validator derived from the content
         self.redirects: dict[str, str] = {}  # path -> absolute path to redirect to (302)
         self.requests: list[tuple[str, str | None]] = []  # (path, Range header)
+        self.if_ranges: list[str | None] = []  # If-Range header of each request
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -29,6 +33,7 @@ class FileServer:
                 path = self.path.lstrip("/")
                 rng = self.headers.get("Range")
                 server.requests.append((path, rng))
+                server.if_ranges.append(self.headers.get("If-Range"))
                 if path in server.redirects:
                     self.send_response(302)
                     self.send_header("Location", server.redirects[path])
@@ -41,6 +46,10 @@ class FileServer:
                     self.send_header("Content-Length", "0")
                     self.end_headers()
                     return
+                etag = f'"{hashlib.sha256(data).hexdigest()[:16]}"'
+                if_range = self.headers.get("If-Range")
+                if if_range and not server.ignore_if_range and if_range != etag:
+                    rng = None  # the file changed since the client's partial copy: send it all (RFC 9110)
                 start = 0
                 if rng and not server.ignore_range:
                     start = int(rng.split("=")[1].split("-")[0])
@@ -55,6 +64,8 @@ class FileServer:
                 else:
                     self.send_response(200)
                 body = data[start:]
+                if server.send_etag:
+                    self.send_header("ETag", etag)
                 self.send_header("Content-Length", str(len(body)))
                 self.send_header("Content-Type", "application/octet-stream")
                 self.end_headers()

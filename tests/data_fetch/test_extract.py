@@ -1,4 +1,5 @@
-"""Safe extraction: good archives extract; malicious members are refused before any write."""
+"""Safe extraction: good archives extract; malicious members are refused before any write;
+corrupt or truncated archives are named and leave nothing behind."""
 
 from __future__ import annotations
 
@@ -8,9 +9,10 @@ import tarfile
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from data_fetch.extract import UnsafeArchiveError, safe_extract
+from data_fetch.extract import CorruptArchiveError, UnsafeArchiveError, safe_extract
 
 
 def _tar(path: Path, members: list[tuple[tarfile.TarInfo, bytes | None]]) -> Path:
@@ -124,3 +126,67 @@ def test_not_an_archive(tmp_path):
     p.write_bytes(b"plain text, not an archive")
     with pytest.raises(ValueError, match="not a tar or zip"):
         safe_extract(p, tmp_path / "out")
+
+
+def _random_members(n=4, size=40_000, seed=0):
+    rng = np.random.default_rng(seed)  # incompressible: a flipped byte lands in member data
+    return [(f"seq/rgb/{i}.png", rng.integers(0, 256, size, dtype=np.uint8).tobytes()) for i in range(n)]
+
+
+def _flip(data: bytes, k: int) -> bytes:
+    return data[:k] + bytes([data[k] ^ 0xFF]) + data[k + 1:]
+
+
+def _good_tgz(path: Path) -> bytes:
+    _tar(path, [_file(name, data) for name, data in _random_members()])
+    return path.read_bytes()
+
+
+def _good_zip(path: Path) -> bytes:
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, data in _random_members(seed=1):
+            zf.writestr(name, data)
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "make, damage",
+    [
+        (_good_tgz, lambda b: b[: len(b) // 2]),  # cut short: the gzip stream ends early
+        (_good_tgz, lambda b: _flip(b, len(b) // 2)),  # a flipped byte in member data: CRC-32
+        (_good_tgz, lambda b: _flip(b, len(b) - 6)),  # the CRC-32 in the gzip trailer itself
+        (_good_zip, lambda b: _flip(b, len(b) // 3)),  # a member's data: its CRC-32
+    ],
+    ids=["tgz-truncated", "tgz-flipped-data", "tgz-flipped-crc", "zip-flipped-data"],
+)
+def test_corrupt_archive_names_the_file_and_extracts_nothing(tmp_path, make, damage):
+    arc = tmp_path / ("seq.zip" if make is _good_zip else "seq.tgz")
+    arc.write_bytes(damage(make(arc)))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("the user's own file")
+    with pytest.raises(CorruptArchiveError, match=rf"{arc.name}: corrupt or truncated archive"):
+        safe_extract(arc, out)
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]  # no partial members, no staging folder
+
+
+def test_truncated_zip_is_not_an_archive(tmp_path):
+    arc = tmp_path / "seq.zip"
+    arc.write_bytes(_good_zip(arc)[:30_000])  # the central directory is gone
+    with pytest.raises(ValueError, match=r"seq\.zip: not a tar or zip archive \(or one damaged"):
+        safe_extract(arc, tmp_path / "out")
+
+
+def test_extract_again_over_a_previous_extraction(tmp_path):
+    arc = tmp_path / "seq.tgz"
+    _good_tgz(arc)
+    out = tmp_path / "out"
+    first = safe_extract(arc, out)
+    (out / "seq" / "rgb" / "0.png").write_bytes(b"edited")
+    (out / "seq" / "results.txt").write_text("kept")
+    again = safe_extract(arc, out)
+    assert first == again and len(again) == 4
+    members = dict(_random_members())
+    assert all((out / name).read_bytes() == data for name, data in members.items())
+    assert (out / "seq" / "results.txt").read_text() == "kept"
+    assert sorted(p.name for p in out.iterdir()) == ["seq"]

@@ -1,4 +1,5 @@
-"""Catalog contents, fetch() end to end against a local server, and the command line."""
+"""Catalog contents, fetch() end to end against a local server (interrupted, corrupt, re-run
+against the manifest), and the command line."""
 
 from __future__ import annotations
 
@@ -9,9 +10,21 @@ import json
 import tarfile
 import zipfile
 
+import numpy as np
 import pytest
 
-from data_fetch import BASE_URLS, CATALOG, CatalogError, ChecksumError, fetch, get_entry, read_manifest, url_for
+from data_fetch import (
+    BASE_URLS,
+    CATALOG,
+    CatalogError,
+    ChecksumError,
+    CorruptArchiveError,
+    DownloadError,
+    fetch,
+    get_entry,
+    read_manifest,
+    url_for,
+)
 from data_fetch.__main__ import main
 
 
@@ -39,11 +52,14 @@ def test_catalog_covers_the_papers_sequences():
         get_entry("fr3_walkng_xyz")
 
 
-def _tgz_bytes() -> bytes:
+def _tgz_bytes(members=None) -> bytes:
+    """A .tgz of ``(name, bytes)`` members; by default a ground truth and an rgb.txt."""
+    if members is None:
+        members = (("rgbd_dataset_freiburg3_walking_xyz/groundtruth.txt", b"# gt\n"),
+                   ("rgbd_dataset_freiburg3_walking_xyz/rgb.txt", b"# rgb\n"))
     buf = io.BytesIO()
     with tarfile.open(fileobj=buf, mode="w:gz") as tf:
-        for name, data in (("rgbd_dataset_freiburg3_walking_xyz/groundtruth.txt", b"# gt\n"),
-                           ("rgbd_dataset_freiburg3_walking_xyz/rgb.txt", b"# rgb\n")):
+        for name, data in members:
             info = tarfile.TarInfo(name)
             info.size = len(data)
             tf.addfile(info, io.BytesIO(data))
@@ -119,3 +135,70 @@ def test_cli_errors(tmp_path, monkeypatch, capsys):
     assert "yolox_tiny" in capsys.readouterr().out
     assert main(["info", "bonn_crowd3"]) == 0
     assert "rgbd_bonn_crowd3.zip" in capsys.readouterr().out
+
+
+TGZ = "freiburg3/rgbd_dataset_freiburg3_walking_xyz.tgz"
+ARCHIVE = "downloads/rgbd_dataset_freiburg3_walking_xyz.tgz"
+
+
+def _big_tgz(seed=0) -> bytes:
+    """A sequence-like .tgz of incompressible members (~120 kB), so transfers can be cut."""
+    rng = np.random.default_rng(seed)
+    return _tgz_bytes([(f"rgbd_dataset_freiburg3_walking_xyz/rgb/{i}.png",
+                        rng.integers(0, 256, 40_000, dtype=np.uint8).tobytes()) for i in range(3)])
+
+
+def test_rerun_verifies_the_archive_against_the_manifest(http_server, tmp_path, monkeypatch):
+    monkeypatch.setitem(BASE_URLS, "tum", http_server.url)
+    data = _big_tgz()
+    http_server.files[TGZ] = data
+    first = fetch("fr3_walking_xyz", tmp_path, progress=False)
+    n = len(http_server.requests)
+    again = fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert len(http_server.requests) == n  # nothing downloaded again
+    assert again.sha256 == first.sha256 == hashlib.sha256(data).hexdigest()
+    assert "already downloaded; matches" in again.message and "manifest.json" in again.message
+    assert read_manifest(tmp_path)["fr3_walking_xyz"]["sha256_source"] == "manifest"
+
+    # The archive is damaged on disk (same size): the re-run names it and the manifest, removes it.
+    archive = tmp_path / ARCHIVE
+    archive.write_bytes(data[:1000] + bytes([data[1000] ^ 1]) + data[1001:])
+    with pytest.raises(ChecksumError, match=r"SHA-256 mismatch.*walking_xyz\.tgz.*manifest\.json"):
+        fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert not archive.exists() and len(http_server.requests) == n
+    # The next run downloads it again and checks the download against the manifest.
+    res = fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert len(http_server.requests) == n + 1 and res.sha256 == first.sha256
+    assert archive.read_bytes() == data
+
+
+def test_interrupted_fetch_resumes_then_extracts(http_server, tmp_path, monkeypatch):
+    monkeypatch.setitem(BASE_URLS, "tum", http_server.url)
+    data = _big_tgz(seed=1)
+    http_server.files[TGZ] = data
+    http_server.cut_after[TGZ] = 50_000
+    with pytest.raises(DownloadError, match="run again to resume"):
+        fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert read_manifest(tmp_path) == {}  # nothing recorded for a partial file
+    assert not (tmp_path / "rgbd_dataset_freiburg3_walking_xyz").exists()
+    res = fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert http_server.requests[-1] == (TGZ, "bytes=50000-")
+    assert res.sha256 == hashlib.sha256(data).hexdigest() and len(res.extracted) == 3
+    assert read_manifest(tmp_path)["fr3_walking_xyz"]["size"] == len(data)
+
+
+def test_corrupt_archive_is_named_removed_and_not_recorded(http_server, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(BASE_URLS, "tum", http_server.url)
+    data = _big_tgz(seed=2)
+    http_server.files[TGZ] = data[:60_000] + bytes([data[60_000] ^ 0xFF]) + data[60_001:]
+    with pytest.raises(CorruptArchiveError, match=r"rgbd_dataset_freiburg3_walking_xyz\.tgz: corrupt or truncated"):
+        fetch("fr3_walking_xyz", tmp_path, progress=False)
+    assert not (tmp_path / ARCHIVE).exists() and read_manifest(tmp_path) == {}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["downloads"]  # nothing half-extracted
+    # The command line says the same and exits 1; once the server is right, a re-run works.
+    assert main(["get", "fr3_walking_xyz", "--dest", str(tmp_path), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "corrupt or truncated archive" in err and "run again" in err
+    http_server.files[TGZ] = data
+    assert main(["get", "fr3_walking_xyz", "--dest", str(tmp_path), "--quiet"]) == 0
+    assert read_manifest(tmp_path)["fr3_walking_xyz"]["sha256"] == hashlib.sha256(data).hexdigest()

@@ -8,8 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from dynslam_lab.evaluation import Trajectory, compute_ate, error_statistics, read_tum_trajectory
 from tests.conftest import shared_file
-
-STATS = ("rmse", "mean", "median", "std", "min", "max")
+from tests.evaluation.evo_reference import REAL_IDS, REAL_PAIRS, assert_stats_match, evo_synced
 
 
 def test_error_statistics_hand_case():
@@ -61,17 +60,9 @@ def test_bad_align(synth):
 
 
 def _evo_ape(gt, est, align):
-    sync = pytest.importorskip("evo.core.sync")
     metrics = pytest.importorskip("evo.core.metrics")
-    from evo.core.trajectory import PoseTrajectory3D
-
-    g = PoseTrajectory3D(poses_se3=list(gt.poses), timestamps=gt.timestamps.copy())
-    e = PoseTrajectory3D(poses_se3=list(est.poses), timestamps=est.timestamps.copy())
-    g, e = sync.associate_trajectories(g, e, max_diff=0.02)
-    if align != "none":
-        e.align(g, correct_scale=(align == "sim3"))
     ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((g, e))
+    ape.process_data(evo_synced(gt, est, align))
     return ape
 
 
@@ -87,34 +78,20 @@ def test_matches_evo_synthetic(synth, align, seed):
     est = est.transformed(S, scale=0.7).subset(np.arange(20, 140))
     ape = _evo_ape(gt, est, align)
     r = compute_ate(gt, est, align=align)
-    ref = ape.get_all_statistics()
-    for k in STATS:
-        assert getattr(r.stats, k) == pytest.approx(ref[k], abs=1e-6), k
+    assert_stats_match(r.stats, ape.get_all_statistics())
     np.testing.assert_allclose(r.errors, ape.error, atol=1e-6)
-
-
-REAL = [
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_bf.txt"),
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_cfs.txt"),
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_rm.txt"),
-    ("tum/trajectories/fr1_xyz_groundtruth.txt", "tum/trajectories/fr1_xyz_rgbdslam.txt"),
-    ("tum/trajectories/fr2_desk_groundtruth.txt", "tum/trajectories/fr2_desk_orbslam2.txt"),
-    ("bonn/groundtruth.txt", "bonn/estimated_dynamic_orbslam.txt"),
-]
 
 
 @pytest.mark.needs_shared
 @pytest.mark.parametrize("align", ["se3", "sim3"])
-@pytest.mark.parametrize("gt_rel, est_rel", REAL, ids=[p[1].split("/")[-1][:-4] for p in REAL])
+@pytest.mark.parametrize("gt_rel, est_rel", REAL_PAIRS, ids=REAL_IDS)
 def test_matches_evo_real(gt_rel, est_rel, align):
     pytest.importorskip("evo")
     gt = read_tum_trajectory(shared_file(gt_rel))
     est = read_tum_trajectory(shared_file(est_rel))
     ape = _evo_ape(gt, est, align)
     r = compute_ate(gt, est, align=align)
-    ref = ape.get_all_statistics()
-    for k in STATS:
-        assert getattr(r.stats, k) == pytest.approx(ref[k], abs=1e-6), k
+    assert_stats_match(r.stats, ape.get_all_statistics())
     assert r.stats.n == len(ape.error)
 
 

@@ -8,8 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from dynslam_lab.evaluation import Trajectory, TrajectoryError, compute_rpe, read_tum_trajectory, rpe_pairs
 from tests.conftest import shared_file
-
-STATS = ("rmse", "mean", "median", "std", "min", "max")
+from tests.evaluation.evo_reference import REAL_IDS, REAL_PAIRS, assert_stats_match, evo_synced
 
 
 def test_pairs_frames():
@@ -99,27 +98,17 @@ def test_too_short_for_delta(synth):
 
 
 def _evo_rpe(gt, est, align, delta, all_pairs, relation):
-    sync = pytest.importorskip("evo.core.sync")
     metrics = pytest.importorskip("evo.core.metrics")
-    from evo.core.trajectory import PoseTrajectory3D
-
-    g = PoseTrajectory3D(poses_se3=list(gt.poses), timestamps=gt.timestamps.copy())
-    e = PoseTrajectory3D(poses_se3=list(est.poses), timestamps=est.timestamps.copy())
-    g, e = sync.associate_trajectories(g, e, max_diff=0.02)
-    if align != "none":
-        e.align(g, correct_scale=(align == "sim3"))
     rel = metrics.PoseRelation.translation_part if relation == "trans" else metrics.PoseRelation.rotation_angle_deg
     m = metrics.RPE(rel, delta, metrics.Unit.frames, all_pairs=all_pairs)
-    m.process_data((g, e))
+    m.process_data(evo_synced(gt, est, align))
     return m
 
 
 def _check(r, gt, est, align, delta, all_pairs):
     for rel, stats, errors in (("trans", r.trans, r.trans_errors), ("rot", r.rot, r.rot_errors)):
         m = _evo_rpe(gt, est, align, delta, all_pairs, rel)
-        ref = m.get_all_statistics()
-        for k in STATS:
-            assert getattr(stats, k) == pytest.approx(ref[k], abs=1e-6), (rel, k)
+        assert_stats_match(stats, m.get_all_statistics(), rel)
         np.testing.assert_allclose(errors, m.error, atol=1e-6)
 
 
@@ -133,18 +122,8 @@ def test_matches_evo_synthetic(synth, align, delta, all_pairs):
     _check(r, gt, est, align, delta, all_pairs)
 
 
-REAL = [
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_bf.txt"),
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_cfs.txt"),
-    ("tum/trajectories/fr3_walking_xyz_groundtruth.txt", "tum/trajectories/fr3_walking_xyz_orbslam2_rm.txt"),
-    ("tum/trajectories/fr1_xyz_groundtruth.txt", "tum/trajectories/fr1_xyz_rgbdslam.txt"),
-    ("tum/trajectories/fr2_desk_groundtruth.txt", "tum/trajectories/fr2_desk_orbslam2.txt"),
-    ("bonn/groundtruth.txt", "bonn/estimated_dynamic_orbslam.txt"),
-]
-
-
 @pytest.mark.needs_shared
-@pytest.mark.parametrize("gt_rel, est_rel", REAL, ids=[p[1].split("/")[-1][:-4] for p in REAL])
+@pytest.mark.parametrize("gt_rel, est_rel", REAL_PAIRS, ids=REAL_IDS)
 def test_matches_evo_real(gt_rel, est_rel):
     pytest.importorskip("evo")
     gt = read_tum_trajectory(shared_file(gt_rel))

@@ -8,6 +8,7 @@ import pytest
 from dynslam_lab.evaluation import Trajectory, TrajectoryError, associate_trajectories, read_tum_trajectory
 from dynslam_lab.evaluation.sync import match_timestamps
 from tests.conftest import shared_file
+from tests.evaluation.evo_reference import evo_trajectory
 
 
 def test_match_hand_case():
@@ -48,12 +49,6 @@ def test_no_match_names_both():
         associate_trajectories(a, b, gt_name="gt.txt", est_name="est.txt")
 
 
-def _evo_traj(traj):
-    from evo.core.trajectory import PoseTrajectory3D
-
-    return PoseTrajectory3D(poses_se3=list(traj.poses), timestamps=traj.timestamps.copy())
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_matches_evo_on_jittered_stamps(seed):
     sync = pytest.importorskip("evo.core.sync")
@@ -64,7 +59,7 @@ def test_matches_evo_on_jittered_stamps(seed):
     gt = Trajectory(t_gt, np.tile(np.eye(4), (n_gt, 1, 1)))
     est = Trajectory(t_est, np.tile(np.eye(4), (n_est, 1, 1)))
     g, e = associate_trajectories(gt, est, 0.02)
-    ge, ee = sync.associate_trajectories(_evo_traj(gt), _evo_traj(est), max_diff=0.02)
+    ge, ee = sync.associate_trajectories(evo_trajectory(gt), evo_trajectory(est), max_diff=0.02)
     np.testing.assert_array_equal(g.timestamps, ge.timestamps)
     np.testing.assert_array_equal(e.timestamps, ee.timestamps)
 
