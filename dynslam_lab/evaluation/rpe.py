@@ -38,7 +38,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..geometry.align import Alignment
 from ..geometry.se3 import se3_inv
@@ -135,6 +134,8 @@ def relative_errors(
     P_rel = se3_inv(est_poses[i]) @ est_poses[j]
     E = se3_inv(Q_rel) @ P_rel
     trans = np.linalg.norm(E[:, :3, 3], axis=1)
+    from scipy.spatial.transform import Rotation  # imported here: trajectory I/O alone does not need scipy
+
     rot = np.degrees(Rotation.from_matrix(E[:, :3, :3]).magnitude()) if len(E) else np.zeros(0)
     return trans, np.asarray(rot, dtype=np.float64)
 

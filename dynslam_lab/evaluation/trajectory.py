@@ -69,7 +69,7 @@ class Trajectory:
 def read_tum_trajectory(path: str | Path) -> Trajectory:
     """Read a TUM trajectory file; clear error naming file and line on a malformed row."""
     path = Path(path)
-    stamps: list[float] = []
+    lines: list[tuple[int, str]] = []
     rows: list[list[float]] = []
     for lineno, s, parts in data_lines(path, TrajectoryError, "trajectory file"):
         if len(parts) != 8:
@@ -77,21 +77,23 @@ def read_tum_trajectory(path: str | Path) -> Trajectory:
                 f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', got {len(parts)}"
             )
         try:
-            vals = [float(x) for x in parts]
+            rows.append([float(x) for x in parts])
         except ValueError:
             raise TrajectoryError(f"{path}:{lineno}: non-numeric value in {s!r}") from None
-        if not np.all(np.isfinite(vals)):
-            raise TrajectoryError(f"{path}:{lineno}: non-finite value in {s!r}")
-        qn = np.linalg.norm(vals[4:8])
-        if qn < 1e-6:
-            raise TrajectoryError(f"{path}:{lineno}: quaternion has zero norm")
-        stamps.append(vals[0])
-        rows.append(vals[1:])
-    if not stamps:
+        lines.append((lineno, s))
+    if not rows:
         raise TrajectoryError(f"{path}: no poses in file")
-    ts = np.asarray(stamps)
+    data = np.asarray(rows)  # checks on all rows at once; the first bad row is named
+    bad = ~np.isfinite(data).all(axis=1)
+    if bad.any():
+        lineno, s = lines[int(np.argmax(bad))]
+        raise TrajectoryError(f"{path}:{lineno}: non-finite value in {s!r}")
+    zero = np.linalg.norm(data[:, 4:8], axis=1) < 1e-6
+    if zero.any():
+        raise TrajectoryError(f"{path}:{lines[int(np.argmax(zero))][0]}: quaternion has zero norm")
+    ts = data[:, 0]
     order = np.argsort(ts, kind="stable")
-    arr = np.asarray(rows)[order]
+    arr = data[order, 1:]
     arr[:, 3:] /= np.linalg.norm(arr[:, 3:], axis=1, keepdims=True)
     return Trajectory(ts[order], pose_from_tum(arr))
 

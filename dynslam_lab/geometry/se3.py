@@ -11,7 +11,6 @@ Every function accepts a single pose ``(4, 4)`` or a stack ``(N, 4, 4)`` where n
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 __all__ = [
     "make_pose",
@@ -81,13 +80,45 @@ def quat_xyzw_to_matrix(q: np.ndarray) -> np.ndarray:
     norms = np.linalg.norm(q, axis=-1)
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-8):
         raise ValueError("quaternion with zero or non-finite norm")
-    return Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+    x, y, z, w = np.moveaxis(q / norms[..., None], -1, 0)  # normalised, as scipy does
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
 
 
 def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` to quaternions ``(..., 4)`` (x, y, z, w), ``w >= 0``."""
+    """Rotation matrices ``(..., 3, 3)`` to quaternions ``(..., 4)`` (x, y, z, w), ``w >= 0``.
+
+    Shepperd's method: of the four ways to read the quaternion off the matrix, each row uses
+    the one whose leading component (``w`` from the trace, or ``x``/``y``/``z`` from a
+    diagonal entry) is largest, so no division by a small number happens near 180 degrees.
+    Plain numpy (no scipy import on the viewer's start-up path); tested against scipy.
+    """
     R = np.asarray(R, dtype=np.float64)
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"matrix_to_quat_xyzw expects (..., 3, 3), got {R.shape}")
+    M = R.reshape(-1, 3, 3)
+    m00, m01, m02 = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    m10, m11, m12 = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
+    m20, m21, m22 = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    # 4 * (x, y, z, w) * (leading component), one candidate per choice of leading component
+    cand = np.stack([
+        np.stack([1 + m00 - m11 - m22, m01 + m10, m02 + m20, m21 - m12], axis=-1),  # x leads
+        np.stack([m01 + m10, 1 - m00 + m11 - m22, m12 + m21, m02 - m20], axis=-1),  # y leads
+        np.stack([m02 + m20, m12 + m21, 1 - m00 - m11 + m22, m10 - m01], axis=-1),  # z leads
+        np.stack([m21 - m12, m02 - m20, m10 - m01, 1 + m00 + m11 + m22], axis=-1),  # w leads
+    ], axis=1)
+    lead = np.argmax(np.stack([m00, m11, m22, m00 + m11 + m22], axis=-1), axis=-1)
+    q = cand[np.arange(len(M)), lead]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q = np.where(q[:, 3:4] < 0, -q, q)
     return q.reshape(R.shape[:-2] + (4,))
 
@@ -112,12 +143,16 @@ def pose_to_tum(T: np.ndarray) -> np.ndarray:
 
 def so3_exp(omega: np.ndarray) -> np.ndarray:
     """Rotation vector(s) ``(..., 3)`` (radians) to matrices ``(..., 3, 3)`` (Rodrigues)."""
+    from scipy.spatial.transform import Rotation
+
     omega = np.asarray(omega, dtype=np.float64)
     return Rotation.from_rotvec(omega.reshape(-1, 3)).as_matrix().reshape(omega.shape[:-1] + (3, 3))
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (radians)."""
+    from scipy.spatial.transform import Rotation
+
     R = np.asarray(R, dtype=np.float64)
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 

@@ -51,3 +51,27 @@ def test_bad_shapes_raise():
         G.quat_xyzw_to_matrix(np.zeros(4))
     with pytest.raises(ValueError, match="7 values"):
         G.pose_from_tum(np.zeros(6))
+
+
+def test_quaternion_conversions_match_scipy():
+    """Our numpy conversions against scipy's Rotation: random rotations, a batch shape, and the
+    hard cases (identity, 180 degrees about each axis and a diagonal, just under 180)."""
+    rng = np.random.default_rng(5)
+    R = Rotation.random(500, random_state=7).as_matrix()
+    hard = [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]),
+            Rotation.from_rotvec(np.pi * np.array([1.0, 1.0, 0.0]) / np.sqrt(2)).as_matrix(),
+            Rotation.from_rotvec((np.pi - 1e-9) * np.array([0.0, 0.6, 0.8])).as_matrix()]
+    R = np.concatenate([R, np.stack(hard)])
+    q = G.matrix_to_quat_xyzw(R)
+    q_ref = Rotation.from_matrix(R).as_quat()
+    q_ref = np.where(q_ref[:, 3:4] < 0, -q_ref, q_ref)
+    # at exactly 180 degrees (w = 0) q and -q are the same rotation: compare up to sign there
+    sign = np.where(np.sum(q * q_ref, axis=1, keepdims=True) < 0, -1.0, 1.0)
+    np.testing.assert_allclose(q, sign * q_ref, atol=1e-12)
+    assert np.all(q[:, 3] >= 0)
+    np.testing.assert_allclose(G.quat_xyzw_to_matrix(q), R, atol=1e-12)
+    # unnormalised input is normalised first, like scipy; batch shapes are kept
+    qs = (q[:12] * rng.uniform(0.5, 2.0, (12, 1))).reshape(3, 4, 4)
+    np.testing.assert_allclose(G.quat_xyzw_to_matrix(qs), Rotation.from_quat(qs.reshape(-1, 4)).as_matrix().reshape(3, 4, 3, 3),
+                               atol=1e-12)
+    assert G.matrix_to_quat_xyzw(R[:12].reshape(3, 4, 3, 3)).shape == (3, 4, 4)
