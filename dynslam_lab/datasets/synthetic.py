@@ -1,27 +1,16 @@
 """Synthetic dynamic RGB-D sequences: a textured office with people, rendered like a Kinect.
 
 The renderer ray-casts an analytic office (walls, desk, monitors, chairs, shelves of books,
-two people built from capsules and ellipsoids) through the pinhole camera
-(:mod:`dynslam_lab.datasets.scene`), textures it with mip-mapped procedural textures
-(:mod:`dynslam_lab.datasets.textures`), shades it with Lambertian point lights, and
-degrades colour and depth the way a Kinect v1 does:
-
-* **axial depth noise** (Nguyen, Izadi & Lovell, "Modeling Kinect sensor noise for improved
-  3D reconstruction and tracking", 3DIMPVT 2012, Sec. 3, Eq. 3)::
-
-      sigma_z(z, theta) = 0.0012 + 0.0019 (z - 0.4)^2 + 0.0001 / sqrt(z) * theta^2 / (pi/2 - theta)^2   [m]
-
-  with ``z`` the depth (m) and ``theta`` the angle between the surface normal and the ray;
-* **disparity quantisation**: the Kinect measures disparity ``d = f b / z`` in steps of
-  1/8 pixel (Khoshelham & Elberink, "Accuracy and resolution of Kinect depth data",
-  Sensors 2012, Eqs. 5-9), so depth comes in steps ``dz = z^2 q / (f b)`` (``b`` = 7.5 cm,
-  ``f`` = 580 px: 2.6 cm at 3 m, as in TUM fr3 depth images);
-  the Gaussian part is reduced so that noise and quantisation together have the standard
-  deviation of Nguyen's model (which was measured on quantised data);
-* **holes**: no reading closer than 0.4 m or beyond 8 m, at grazing angles, at depth
-  discontinuities, in the *projector shadow* (background seen by the camera but hidden
-  from the IR projector 7.5 cm to its side), on glossy screens and dark (IR-absorbing)
-  surfaces, increasingly beyond 4.5 m, and random small dropouts.
+two people built from capsules and ellipsoids; :mod:`~dynslam_lab.datasets.office`,
+:mod:`~dynslam_lab.datasets.people`) through the pinhole camera
+(:mod:`~dynslam_lab.datasets.raycaster`), moved along the preset's camera path
+(:mod:`~dynslam_lab.datasets.camera_paths`), textures it with mip-mapped procedural textures
+(:mod:`~dynslam_lab.datasets.textures`), shades it with Lambertian lights (this module), and
+degrades colour and depth the way a Kinect v1 does: 0.5 px optical blur and Gaussian colour
+noise here, and in :mod:`~dynslam_lab.datasets.kinect` the axial depth noise of Nguyen, Izadi &
+Lovell (3DIMPVT 2012, Eq. 3), the 1/8 px disparity quantisation of Khoshelham & Elberink
+(Sensors 2012) and the holes (range limits, grazing angles, depth discontinuities, the projector
+shadow, glossy, dark and far surfaces, random dropouts).
 
 Sequences are written in the TUM RGB-D layout (``rgb/``, ``depth/``, ``rgb.txt``,
 ``depth.txt``, ``groundtruth.txt``) plus ``camera.json``, instance masks ``masks/``,
@@ -44,8 +33,11 @@ import cv2
 import numpy as np
 
 from ..camera import CAMERA_PRESETS, PinholeCamera, save_camera_json
-from ..geometry.se3 import pose_to_tum, so3_exp
+from ..geometry.se3 import pose_to_tum
 from . import scene as sc
+from .camera_paths import camera_pose, frame_times
+from .kinect import DepthNoise, disparity_step, kinect_depth, nguyen_sigma
+from .raycaster import ray_grid
 from .textures import TextureAtlas, build_atlas, sample_atlas
 
 __all__ = [
@@ -74,37 +66,6 @@ RENDER_VERSION = "12"
 T0 = 1_600_000_000.0
 #: An instance is "moving" in a frame when some point of its surface moved more than this (m).
 MOVING_THRESHOLD = 0.001
-
-
-@dataclass(frozen=True)
-class DepthNoise:
-    """Parameters of the simulated Kinect v1 depth sensor."""
-
-    sigma_0: float = 0.0012  # m, constant term of the axial noise (Nguyen 2012, Eq. 3)
-    sigma_2: float = 0.0019  # m/m^2, quadratic term (Nguyen 2012, Eq. 3)
-    z_ref: float = 0.4  # m, depth of the quadratic term's minimum (Nguyen 2012, Eq. 3)
-    sigma_angle: float = 0.0001  # m*sqrt(m), angle term weight (Nguyen 2012, Eq. 3)
-    baseline: float = 0.075  # m, IR projector to IR camera (Khoshelham & Elberink 2012, Sec. 2)
-    ir_focal: float = 580.0  # px, focal length of the IR camera that measures disparity (Khoshelham &
-    #   Elberink 2012 calibration, ~580 px; gives the 2.6 cm steps at 3 m seen in TUM fr3 depth images)
-    disparity_step: float = 0.125  # px, disparity resolution 1/8 px (Khoshelham & Elberink 2012, Sec. 2.2)
-    z_min: float = 0.4  # m, nearest reading (Kinect v1 specification; TUM)
-    z_max: float = 8.0  # m, farthest reading (Kinect v1 practical range; our choice, few TUM readings lie beyond)
-    min_cos: float = 0.12  # no reading where |cos| of the incidence angle is below this (~83 deg)
-    edge_jump: float = 0.04  # relative depth jump between neighbours counted as a discontinuity (our choice)
-    edge_width: int = 1  # px, holes grow this far around discontinuities (our choice)
-    shadow: bool = True  # simulate the projector shadow beside foreground objects
-    dropout_rate: float = 0.0008  # seeds of random holes per pixel, each grown to a 3x3 blob (our choice)
-    dark_dropout: float = 0.6  # miss probability on black surfaces (albedo -> 0), fading out at albedo 0.12 (our choice:
-    #   dark materials absorb the IR pattern)
-    far_dropout: float = 0.35  # miss probability reached at z_max, growing linearly from 4.5 m (our choice)
-    enabled: bool = True  # False: exact depth (still with range limits), for tests and figures
-
-    def __post_init__(self) -> None:
-        if self.z_min <= 0 or self.z_max <= self.z_min:
-            raise ValueError(f"DepthNoise: need 0 < z_min < z_max, got {self.z_min}, {self.z_max}")
-        if self.baseline <= 0 or self.disparity_step < 0:
-            raise ValueError("DepthNoise: baseline must be positive and disparity_step non-negative")
 
 
 @dataclass(frozen=True)
@@ -174,160 +135,6 @@ def get_preset(preset: str | ScenePreset) -> ScenePreset:
     return PRESETS[preset]
 
 
-# ---------------------------------------------------------------------------- time
-def frame_times(n_frames: int) -> np.ndarray:
-    """Times (s from the start) of ``n_frames`` colour frames at 30 Hz on the 100 Hz ground-truth grid.
-
-    Frame ``i`` is taken at ``round(i * 100 / 30) / 100`` s (intervals of 30, 40, 30 ms), so every
-    colour frame has an exact ground-truth pose in the 100 Hz ``groundtruth.txt``.
-    """
-    return np.round(np.arange(n_frames) * 100.0 / 30.0) / 100.0
-
-
-# -------------------------------------------------------------------- camera paths
-def _base_rotation() -> np.ndarray:
-    return sc.look_at(sc.VIEW_EYE, sc.VIEW_TARGET)[:3, :3]
-
-
-def camera_pose(motion: str, t: float, duration: float) -> np.ndarray:
-    """Camera pose ``T_w_c (4, 4)`` of a motion preset at time ``t`` (s) of a ``duration`` s sequence.
-
-    * ``static``: the fixed view with a hand-held tremor of ~2 mm and ~0.1 deg;
-    * ``xyz``: translations along the camera axes, amplitudes 0.4 / 0.25 / 0.3 m (x / y / z);
-    * ``rpy``: rotations about the camera axes: pitch 12 deg, yaw 20 deg, roll 15 deg;
-    * ``halfsphere``: on a sphere of radius 0.5 m, azimuth +-60 deg, elevation 0..40 deg, looking at the desk;
-    * ``loop``: round a circle of radius 0.85 m in the room centre, looking outwards, once in ``duration``
-      with zero speed at both ends: the last pose equals the first.
-    """
-    w = 2 * np.pi
-    R0 = _base_rotation()
-    if motion == "static":
-        dt = 0.002 * np.array([np.sin(w * 0.7 * t), np.sin(w * 0.45 * t + 1), np.sin(w * 0.3 * t + 2)])
-        dr = np.radians(0.1) * np.array([np.sin(w * 0.5 * t + 3), np.sin(w * 0.35 * t), np.sin(w * 0.6 * t + 1)])
-        return sc.pose(R0 @ so3_exp(dr), sc.VIEW_EYE + R0 @ dt)
-    if motion == "xyz":
-        dt = np.array([0.4 * np.sin(w * t / 10.0), 0.25 * np.sin(w * t / 8.0 + 0.5), 0.3 * np.sin(w * t / 12.0 + 1.0)])
-        dt -= np.array([0.0, 0.25 * np.sin(0.5), 0.3 * np.sin(1.0)])  # start at the base view
-        dr = np.radians(2.0) * np.array([np.sin(w * t / 7.0), np.sin(w * t / 9.0), 0.0])
-        return sc.pose(R0 @ so3_exp(dr), sc.VIEW_EYE + R0 @ dt)
-    if motion == "rpy":
-        ang = np.radians([12.0 * np.sin(w * t / 7.0), 20.0 * np.sin(w * t / 9.0), 15.0 * np.sin(w * t / 11.0)])
-        dt = 0.02 * np.array([np.sin(w * t / 5.0), np.sin(w * t / 6.0), np.sin(w * t / 4.0)])
-        R = R0 @ sc.rot_x(ang[0]) @ sc.rot_y(ang[1]) @ sc.rot_z(ang[2])
-        return sc.pose(R, sc.VIEW_EYE + dt)
-    if motion == "halfsphere":
-        phi = np.radians(60.0) * np.sin(w * t / 12.0)
-        theta = np.radians(20.0) * (1.0 - np.cos(w * t / 9.0))
-        fwd = sc.VIEW_TARGET - sc.VIEW_EYE
-        fwd[2] = 0.0
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, [0.0, 0.0, 1.0])
-        centre = sc.VIEW_EYE + 0.5 * fwd
-        eye = centre + 0.5 * (np.cos(theta) * (np.sin(phi) * right - np.cos(phi) * fwd) + np.sin(theta) * np.array([0, 0, 1.0]))
-        return sc.look_at(eye, sc.VIEW_TARGET)
-    if motion == "loop":
-        tau = np.clip(t / max(duration, 1e-9), 0.0, 1.0)
-        alpha = np.pi / 2 + 2 * np.pi * (tau - np.sin(2 * np.pi * tau) / (2 * np.pi))
-        centre = np.array([0.0, 0.1, 1.4])
-        eye = centre + 0.85 * np.array([np.cos(alpha), np.sin(alpha), 0.0])
-        target = eye + np.array([np.cos(alpha), np.sin(alpha), -0.22])
-        return sc.look_at(eye, target)
-    raise ValueError(f"unknown camera motion {motion!r}")
-
-
-# ---------------------------------------------------------------------- depth model
-def nguyen_sigma(z: np.ndarray, theta: np.ndarray | float = 0.0, params: DepthNoise = DepthNoise()) -> np.ndarray:
-    """Axial noise std (m) of Kinect depth ``z`` (m) at incidence angle ``theta`` (rad), Nguyen 2012 Eq. 3."""
-    z = np.asarray(z, np.float64)
-    th = np.clip(np.asarray(theta, np.float64), 0.0, np.radians(80.0))
-    zs = np.maximum(z, 1e-3)
-    return params.sigma_0 + params.sigma_2 * (z - params.z_ref) ** 2 + params.sigma_angle / np.sqrt(zs) * th**2 / (np.pi / 2 - th) ** 2
-
-
-def disparity_step(z: np.ndarray, params: DepthNoise = DepthNoise()) -> np.ndarray:
-    """Depth quantisation step (m) at depth ``z`` (m): ``z^2 q / (f b)`` (Khoshelham & Elberink 2012, Eq. 9),
-    ``f`` the IR camera's focal length (px), ``b`` the baseline (m), ``q`` the disparity step (px)."""
-    return np.asarray(z, np.float64) ** 2 * params.disparity_step / (params.ir_focal * params.baseline)
-
-
-def kinect_depth(
-    z: np.ndarray,
-    cos: np.ndarray,
-    fx: float,
-    params: DepthNoise,
-    rng: np.random.Generator,
-    dropout: np.ndarray | None = None,
-) -> np.ndarray:
-    """Turn a true depth image into a Kinect-like one (noise, quantisation, holes).
-
-    Parameters
-    ----------
-    z : ``(H, W)`` true depth (m), ``inf`` or 0 where no surface.
-    cos : ``(H, W)`` ``|cos|`` of the angle between the surface normal and the ray.
-    fx : unused by the default model (the disparity uses ``params.ir_focal``); kept so callers can pass the
-        colour camera's focal length when ``params.ir_focal`` is 0.
-    params : sensor model.
-    rng : random generator of this frame.
-    dropout : ``(H, W)`` probability of a missing reading per pixel (glossy surfaces), or None.
-
-    Returns
-    -------
-    ``(H, W)`` float32 measured depth (m), 0 = no reading.
-    """
-    z = np.where(np.isfinite(z), z, np.float32(0.0)).astype(np.float32)
-    has = z > 0
-    hole = ~has | (z < params.z_min) | (z > params.z_max)
-    if not params.enabled:
-        return np.where(hole, np.float32(0.0), z)
-    H, W = z.shape
-    f32 = np.float32
-    # Nguyen 2012 Eq. 3 in float32 (nguyen_sigma is the float64 reference)
-    theta = np.arccos(np.clip(cos, f32(np.cos(np.radians(80.0))), f32(1.0)))  # incidence angle, <= 80 deg
-    zs = np.maximum(z, f32(1e-3))
-    sigma = (f32(params.sigma_0) + f32(params.sigma_2) * (z - f32(params.z_ref)) ** 2
-             + f32(params.sigma_angle) / np.sqrt(zs) * theta * theta / (f32(np.pi / 2) - theta) ** 2)
-    fb = f32((params.ir_focal or fx) * params.baseline)
-    dz = z * z * f32(params.disparity_step) / fb
-    sigma_g = np.sqrt(np.maximum(sigma * sigma - dz * dz / f32(12.0), f32(0.0)))
-    zn = z + sigma_g * rng.standard_normal((H, W), dtype=np.float32)
-    if params.disparity_step > 0:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = f32(params.disparity_step)
-            disp = np.round(fb / zn / q) * q
-            zq = np.where(disp > 0, fb / disp, f32(0.0))
-    else:
-        zq = zn
-    hole |= cos < params.min_cos
-    # depth discontinuities: neighbours whose depth differs by more than edge_jump * z
-    zz = np.where(has, z, 1e3)
-    jump = np.zeros((H, W), bool)
-    dx = np.abs(np.diff(zz, axis=1)) > params.edge_jump * np.minimum(zz[:, 1:], zz[:, :-1])
-    dy = np.abs(np.diff(zz, axis=0)) > params.edge_jump * np.minimum(zz[1:], zz[:-1])
-    jump[:, 1:] |= dx
-    jump[:, :-1] |= dx
-    jump[1:] |= dy
-    jump[:-1] |= dy
-    if params.edge_width > 0:
-        k = 2 * params.edge_width + 1
-        jump = cv2.dilate(jump.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
-    hole |= jump
-    if params.shadow:
-        # projector at +baseline along camera x: pixel u is hidden from it when a pixel u' > u
-        # projects to a smaller projector column u' - d(u') < u - d(u) (it lies in front, on the projector's ray).
-        d = np.where(has, fb / np.maximum(z, f32(1e-3)), f32(0.0))
-        q = np.arange(W, dtype=np.float32)[None, :] - d
-        suffix = np.minimum.accumulate(q[:, ::-1], axis=1)[:, ::-1]
-        later = np.full_like(q, np.inf)
-        later[:, :-1] = suffix[:, 1:]
-        hole |= later < q - f32(0.05)  # strictly hidden (0.05 px: float round-off)
-    seeds = (rng.random((H, W), dtype=np.float32) < params.dropout_rate).astype(np.uint8)
-    hole |= cv2.dilate(seeds, np.ones((3, 3), np.uint8)).astype(bool)
-    if dropout is not None:
-        hole |= rng.random((H, W), dtype=np.float32) < dropout
-    out = np.where(hole | (zq < params.z_min) | (zq > params.z_max), 0.0, zq)
-    return out.astype(np.float32)
-
-
 # -------------------------------------------------------------------------- renderer
 @dataclass
 class RenderedFrame:
@@ -374,6 +181,7 @@ class SyntheticRenderer:
             raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
         self.camera: PinholeCamera = CAMERA_PRESETS[self.preset.camera]
         self.scene, self.atlas = _build_scene(self.preset.scene, self.seed)
+        _keep_frame_buffers_mapped()
         self.times = frame_times(self.n_frames)
         self.duration = float(self.times[-1])
 
@@ -411,6 +219,25 @@ class SyntheticRenderer:
 
 
 _NOISE_PAD = 64
+_HEAP_PRIMED = False
+
+
+def _keep_frame_buffers_mapped() -> None:
+    """Let the C allocator recycle the frame-sized temporaries of rendering instead of unmapping them.
+
+    A frame allocates and frees some hundred arrays of 1-4 MB. glibc's malloc gives such blocks back
+    to the kernel (``munmap``, or trimming the top of the heap) as soon as they are freed, while
+    its thresholds are low, and the next frame page-faults them in again: 3000-7000 faults per
+    frame, 5-12 ms of a 35 ms frame on the development VM, and erratic from run to run. glibc
+    raises its mmap threshold to the size of any mmapped block that is freed (and its trim
+    threshold to twice that; ``mallopt(3)``, "dynamic mmap threshold"), so one 30 MB block
+    allocated and freed here, once per process, makes every later frame reuse heap memory.
+    Elsewhere this is just a short-lived allocation.
+    """
+    global _HEAP_PRIMED
+    if not _HEAP_PRIMED:
+        np.ones(30 << 20, np.uint8)  # touched (so really mapped), then freed at once
+        _HEAP_PRIMED = True
 
 
 @lru_cache(maxsize=2)
@@ -420,14 +247,10 @@ def _noise_bank(shape: tuple[int, ...], seed: int) -> np.ndarray:
     return rng.standard_normal((shape[0] + _NOISE_PAD, shape[1] + _NOISE_PAD) + tuple(shape[2:]), dtype=np.float32)
 
 
-_RAY_LENGTHS: dict = {}
-
-
-def _ray_lengths(camera: PinholeCamera, rays: np.ndarray) -> np.ndarray:
-    key = (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
-    if key not in _RAY_LENGTHS:
-        _RAY_LENGTHS[key] = np.linalg.norm(rays, axis=-1).astype(np.float32)
-    return _RAY_LENGTHS[key]
+@lru_cache(maxsize=4)
+def _scaled_noise_bank(shape: tuple[int, ...], seed: int, scale: np.float32) -> np.ndarray:
+    """``_noise_bank(shape, seed) * scale`` (float32), kept for the two signs of a sequence's noise."""
+    return _noise_bank(shape, seed) * scale
 
 
 @lru_cache(maxsize=4)
@@ -437,6 +260,27 @@ def _build_scene(scene: str, seed: int) -> tuple[sc.OfficeScene, TextureAtlas]:
     return office, build_atlas(office.bank.images)
 
 
+_PART_ROWS: dict = {}
+
+
+def _part_tables(parts) -> tuple[np.ndarray, ...]:
+    """Per-part tables: texture of each face ``(P * 6,)``, tint ``(P, 3)`` (column-major: one contiguous
+    column per channel) and whether each part is tinted, texel density, instance id and depth dropout ``(P,)`` (rows cached per shape: people are re-posed every frame,
+    their shapes stay the same)."""
+    rows = []
+    for shape, _ in parts:
+        row = _PART_ROWS.get(shape)
+        if row is None:
+            if len(_PART_ROWS) >= 20000:  # many scenes passed through: start afresh
+                _PART_ROWS.clear()
+            row = _PART_ROWS[shape] = (shape.face_textures(), shape.tint, shape.texel_density, shape.instance, shape.dropout)
+        rows.append(row)
+    face_tex, tint, density, inst, drop = zip(*rows)
+    tint = np.array(tint, np.float32)
+    return (np.array(face_tex, np.intp).ravel(), np.asfortranarray(tint), (tint != 1.0).any(axis=1),
+            np.array(density, np.float32), np.array(inst, np.int32), np.array(drop, np.float32))
+
+
 def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray, preset: ScenePreset,
            rng: np.random.Generator, noise: bool, noise_seed: int | None = None):
     """Ray cast, texture, light and degrade one frame.
@@ -444,56 +288,105 @@ def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray,
     Returns ``rgb (H, W, 3) uint8``, ``depth (H, W) float32`` (m, 0 = hole), ``depth_true`` (m),
     ``mask (H, W) int32`` instance ids and ``normal (H, W, 3)`` (camera frame). ``noise=False``
     skips blur, colour noise and the depth sensor model (range limits only).
+
+    Every per-pixel step is float32 in a fixed order (per-part values are gathered with
+    ``np.take``; temporaries are reused with ``out=``), so a frame has the same bits every time.
     """
     g = sc.raycast(parts, camera, T_w_c)
+    grid = ray_grid(camera)
+    f32 = np.float32
     hit = g.part >= 0
-    pid = np.where(hit, g.part, 0).astype(np.intp)  # intp: numpy gathers with int32 indices are much slower
-    face_tex = np.array([s.face_textures() for s, _ in parts], np.int32)
-    tint = np.array([s.tint for s, _ in parts], np.float32)
-    density = np.array([s.texel_density for s, _ in parts], np.float32)
-    inst = np.array([s.instance for s, _ in parts], np.int32)
-    drop = np.array([s.dropout for s, _ in parts], np.float32)
-    z = np.where(hit, g.depth, np.float32(0.0))
+    all_hit = bool(hit.all())  # the room encloses the camera: normally every ray hits
+    # intp: numpy gathers with int32 indices are much slower
+    pid = g.part.astype(np.intp) if all_hit else np.where(hit, g.part, 0).astype(np.intp)
+    face_tex, tint, tint_any, density, inst, drop = _part_tables(parts)
+    z = g.depth if all_hit else np.where(hit, g.depth, f32(0.0))
     nx, ny, nz = g.normal_planes
-    rx, ry = g.rays[..., 0], g.rays[..., 1]
-    ray_len = _ray_lengths(camera, g.rays)
-    cos = np.abs(nx * rx + ny * ry + nz) / ray_len  # |cos| of the incidence angle
+    rx, ry = grid.x, grid.y
+    # |cos| of the incidence angle
+    cos = nx * rx
+    cos += ny * ry
+    cos += nz
+    np.abs(cos, out=cos)
+    cos /= grid.length
     # pixel footprint in texels; the sqrt softens the isotropic blur of oblique surfaces (a cheap
     # stand-in for anisotropic filtering)
-    footprint = z * (ray_len / np.float32(camera.fx)) / np.sqrt(np.maximum(cos, np.float32(0.1))) * density[pid]
-    level = np.log2(np.maximum(footprint, np.float32(1e-6)))
-    tex = face_tex.ravel()[pid * 6 + g.face.astype(np.intp)]
-    albedo = sample_atlas(atlas, tex, g.s, g.t, level) * tint[pid]
+    tmp = np.maximum(cos, f32(0.1))
+    np.sqrt(tmp, out=tmp)
+    footprint = z * grid.length_per_fx
+    footprint /= tmp
+    footprint *= np.take(density, pid)
+    level = np.maximum(footprint, f32(1e-6), out=footprint)
+    np.log2(level, out=level)
+    idx = pid * 6
+    idx += g.face
+    tex = np.take(face_tex, idx)
+    albedo = sample_atlas(atlas, tex, g.s, g.t, level)
+    if tint_any.any():  # tints (books, chairs...)
+        cv2.multiply(albedo, cv2.merge([np.take(tint[:, c], pid) for c in range(3)]), dst=albedo)
     # Lambertian shading: a lamp (point light, fading with distance) and fill lights fixed in the room
     R_cw = T_w_c[:3, :3].T
     Lc = (R_cw @ (sc.LAMP[0] - T_w_c[:3, 3])).astype(np.float32)
-    vx, vy, vz = Lc[0] - rx * z, Lc[1] - ry * z, Lc[2] - z
-    d2 = vx * vx + vy * vy + vz * vz
-    lam = np.maximum(nx * vx + ny * vy + nz * vz, 0.0) / np.sqrt(d2)
-    light = np.float32(sc.AMBIENT) + np.float32(sc.LAMP[1]) * lam / (1.0 + d2 * np.float32(1 / 9.0))
+    vx = rx * z
+    np.subtract(Lc[0], vx, out=vx)
+    vy = ry * z
+    np.subtract(Lc[1], vy, out=vy)
+    vz = np.subtract(Lc[2], z)
+    d2 = vx * vx
+    d2 += np.multiply(vy, vy, out=tmp)
+    d2 += np.multiply(vz, vz, out=tmp)
+    lam = nx * vx
+    lam += np.multiply(ny, vy, out=tmp)
+    lam += np.multiply(nz, vz, out=tmp)
+    np.maximum(lam, 0.0, out=lam)
+    lam /= np.sqrt(d2, out=tmp)
+    lam *= f32(sc.LAMP[1])
+    d2 *= f32(1 / 9.0)
+    d2 += 1.0
+    light = np.divide(lam, d2, out=lam)
+    light += f32(sc.AMBIENT)  # a + b and b + a are the same in floating point
     for direction, power in sc.FILL_LIGHTS:
         lc = (R_cw @ (direction / np.linalg.norm(direction))).astype(np.float32) * np.float32(power)
-        light += np.maximum(nx * lc[0] + ny * lc[1] + nz * lc[2], 0.0)
-    img = albedo * (light * np.float32(255.0))[..., None]
-    if not hit.all():
+        fill = np.multiply(nx, lc[0], out=vx)
+        fill += np.multiply(ny, lc[1], out=vy)
+        fill += np.multiply(nz, lc[2], out=vz)
+        light += np.maximum(fill, 0.0, out=fill)
+    light *= f32(255.0)
+    img = cv2.multiply(albedo, cv2.merge([light, light, light]))  # albedo * light per channel, as numpy would
+    if not all_hit:
         img[~hit] = 0.0
     if noise and preset.blur > 0:
         img = cv2.GaussianBlur(img, (0, 0), preset.blur)
     if noise and preset.image_noise > 0:
         # sensor noise: a window at a random place in a noise image drawn once per (seed, size), with
         # random sign, costs far less than fresh Gaussian draws for every pixel of every frame
-        bank = _noise_bank(img.shape, int(rng.integers(2**31)) if noise_seed is None else noise_seed)
+        bank_seed = int(rng.integers(2**31)) if noise_seed is None else noise_seed
         oy, ox = (int(v) for v in rng.integers(0, _NOISE_PAD, 2))
         sign = np.float32(1.0 if rng.random() < 0.5 else -1.0)
-        img += bank[oy : oy + img.shape[0], ox : ox + img.shape[1]] * (sign * np.float32(preset.image_noise))
-    rgb = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+        bank = _scaled_noise_bank(img.shape, bank_seed, sign * np.float32(preset.image_noise))
+        img += bank[oy : oy + img.shape[0], ox : ox + img.shape[1]]
+    img += f32(0.5)
+    np.clip(img, 0, 255, out=img)
+    rgb = img.astype(np.uint8)
     params = preset.depth if noise else replace(preset.depth, enabled=False)
     # chance of no reading: glossy parts, dark (IR-absorbing) albedo, long range
     lum = albedo @ np.array([0.299, 0.587, 0.114], np.float32)
-    p_miss = np.maximum(drop[pid], np.float32(params.dark_dropout) * np.clip(1.0 - lum / np.float32(0.12), 0.0, 1.0))
-    p_miss += np.float32(params.far_dropout) * np.clip((z - np.float32(4.5)) / np.float32(params.z_max - 4.5), 0.0, 1.0)
-    depth = kinect_depth(z, cos, camera.fx, params, rng, dropout=np.where(hit, p_miss, np.float32(1.0)))
-    mask = np.where(hit, inst[pid], 0).astype(np.int32)
+    lum /= f32(0.12)
+    np.subtract(1.0, lum, out=lum)
+    np.clip(lum, 0.0, 1.0, out=lum)
+    lum *= f32(params.dark_dropout)
+    p_miss = np.maximum(np.take(drop, pid), lum, out=lum)
+    far = np.subtract(z, f32(4.5), out=tmp)
+    far /= f32(params.z_max - 4.5)
+    np.clip(far, 0.0, 1.0, out=far)
+    far *= f32(params.far_dropout)
+    p_miss += far
+    if not all_hit:
+        p_miss[~hit] = 1.0
+    depth = kinect_depth(z, cos, camera.fx, params, rng, dropout=p_miss)
+    mask = np.take(inst, pid)
+    if not all_hit:
+        mask[~hit] = 0
     return rgb, depth, z, mask, g.normal
 
 
