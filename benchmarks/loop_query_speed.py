@@ -11,6 +11,11 @@ when present (else synthetic frames), each keyframe a random 80 % of one frame's
 with 8 bits flipped, so that the database holds many similar places (the hard case for the
 inverted index: long posting lists).
 
+The table also gives the **relocalisation** query (ORB-SLAM2 ``DetectRelocalizationCandidates``,
+what ``Tracker.relocalize`` asks before matching): the BoW vector of a lost frame and
+:meth:`KeyframeDatabase.detect_relocalisation_candidates` against every keyframe, no exclusion and
+no ``s_min``, so all groups of keyframes sharing enough words are accumulated.
+
 Usage::
 
     python benchmarks/loop_query_speed.py [--keyframes 100 300 1000] [--features 1000]
@@ -70,7 +75,7 @@ def bench(n_kf: int, sources: list[np.ndarray], rng: np.random.Generator) -> dic
     for _ in range(20):
         src = sources[int(rng.integers(len(sources)))]
         queries.append(flip(src[rng.random(len(src)) < 0.8], 8, rng))
-    t_bow, t_query, t_cpu, n_cand = [], [], [], []
+    t_bow, t_query, t_cpu, n_cand, t_reloc, n_reloc = [], [], [], [], [], []
     for q in queries:
         c0 = time.process_time()
         t0 = time.perf_counter()
@@ -83,6 +88,11 @@ def bench(n_kf: int, sources: list[np.ndarray], rng: np.random.Generator) -> dic
         t_bow.append(1e3 * (t1 - t0))
         t_query.append(1e3 * (t2 - t1))
         n_cand.append(len(c))
+        # relocalisation: the frame's BoW vector and the query against every keyframe
+        t3 = time.perf_counter()
+        r = db.detect_relocalisation_candidates(voc.bow(q), neighbours=lambda i: neighbours[i])
+        t_reloc.append(1e3 * (time.perf_counter() - t3))
+        n_reloc.append(len(r))
     return {
         "bow_ms": float(np.median(t_bow)),
         "db_ms": float(np.median(t_query)),
@@ -90,6 +100,8 @@ def bench(n_kf: int, sources: list[np.ndarray], rng: np.random.Generator) -> dic
         "cpu_ms": float(np.median(t_cpu)),
         "max_ms": float(np.max(np.add(t_bow, t_query))),
         "candidates": float(np.mean(n_cand)),
+        "reloc_ms": float(np.median(t_reloc)),
+        "reloc_candidates": float(np.mean(n_reloc)),
         "entries": float(db.n_entries),
     }
 
@@ -105,12 +117,14 @@ def main() -> None:
     voc = default_vocabulary()
     print(f"vocabulary: {voc}; keyframes simulated from {src}, {args.features} features each")
     print("medians over 20 queries; wall-clock times suffer when other processes share the CPU, the CPU time does not")
-    print(f"{'keyframes':>9} {'index entries':>13} {'BoW ms':>8} {'query ms':>9} {'total ms':>9} {'CPU ms':>8} {'max ms':>8} {'candidates':>10}  target <= 10 ms")
+    print("loop: BoW + loop query per keyframe; reloc: BoW + relocalisation query per lost frame (no exclusion, no s_min)")
+    print(f"{'keyframes':>9} {'index entries':>13} {'BoW ms':>8} {'query ms':>9} {'total ms':>9} {'CPU ms':>8} {'max ms':>8} "
+          f"{'candidates':>10} {'reloc ms':>9} {'reloc cand':>10}  target <= 10 ms")
     for n in args.keyframes:
         r = bench(n, sources, rng)
-        ok = "ok" if min(r["total_ms"], r["cpu_ms"]) <= 10.0 else "SLOW"
+        ok = "ok" if min(r["total_ms"], r["cpu_ms"]) <= 10.0 and r["reloc_ms"] <= 10.0 else "SLOW"
         print(f"{n:9d} {int(r['entries']):13d} {r['bow_ms']:8.2f} {r['db_ms']:9.2f} {r['total_ms']:9.2f} {r['cpu_ms']:8.2f} "
-              f"{r['max_ms']:8.2f} {r['candidates']:10.1f}  {ok}")
+              f"{r['max_ms']:8.2f} {r['candidates']:10.1f} {r['reloc_ms']:9.2f} {r['reloc_candidates']:10.1f}  {ok}")
 
 
 if __name__ == "__main__":

@@ -20,6 +20,10 @@ entry per word of each keyframe, sorted by word now and then into posting lists 
 words in one vectorised pass (plus a scan of the few entries added since the last sort), so
 the score of every keyframe is one ``bincount`` (the L1 score is a sum of ``min`` over shared
 words).
+
+The same query serves **relocalisation** (ORB-SLAM2 ``DetectRelocalizationCandidates``): a lost
+frame's BoW vector against every keyframe, steps 2-4 without exclusion and without ``s_min``
+(:meth:`KeyframeDatabase.detect_relocalisation_candidates`).
 """
 
 from __future__ import annotations
@@ -214,6 +218,46 @@ class KeyframeDatabase:
         -------
         list of LoopCandidate, best accumulated score first.
         """
+        return self._grouped_candidates(bow, exclude, min_score, neighbours, config)
+
+    def detect_relocalisation_candidates(
+        self,
+        bow: BowVector,
+        neighbours: Callable[[int], Iterable[int]],
+        config: CandidateQueryConfig = CandidateQueryConfig(),
+        exclude: Iterable[int] = (),
+    ) -> list[LoopCandidate]:
+        """Keyframes a lost frame may be relocalised against (ORB-SLAM2
+        ``DetectRelocalizationCandidates``; ORB-SLAM, T-RO 2015, Sec. V-C).
+
+        The query of :meth:`detect_loop_candidates` for a *frame* instead of a keyframe: every
+        keyframe sharing words with it (a lost frame has no covisible keyframes to exclude and no
+        ``s_min``), those with more than ``0.8 *`` the largest number of shared words scored,
+        each grouped with its best covisible keyframes, and the best keyframe of every group
+        scoring above ``0.75 *`` the best group returned.
+
+        Parameters
+        ----------
+        bow : BoW vector of the frame (its static keypoints).
+        neighbours : ``kf_id -> ids`` of a keyframe's best covisible keyframes (best first).
+        config : ratios of the query (the same as for loops in ORB-SLAM2).
+        exclude : keyframe ids never returned (e.g. culled ones).
+
+        Returns
+        -------
+        list of LoopCandidate, best accumulated score first.
+        """
+        return self._grouped_candidates(bow, exclude, 0.0, neighbours, config)
+
+    def _grouped_candidates(
+        self,
+        bow: BowVector,
+        exclude: Iterable[int],
+        min_score: float,
+        neighbours: Callable[[int], Iterable[int]],
+        config: CandidateQueryConfig,
+    ) -> list[LoopCandidate]:
+        """Steps 2-4 shared by the loop and the relocalisation queries."""
         ids, common, score = self.scores(bow)
         excl = np.fromiter((int(e) for e in exclude), np.int64)
         keep = ~np.isin(ids, excl)

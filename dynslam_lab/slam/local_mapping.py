@@ -48,6 +48,7 @@ __all__ = [
     "fuse_with_neighbours",
     "cull_recent_points",
     "run_local_ba",
+    "bundle_adjust_map",
     "cull_keyframes",
 ]
 
@@ -209,6 +210,32 @@ def gather_observations(kfs: dict[int, KeyFrame], o_kf: np.ndarray, o_kp: np.nda
     return Observations.from_keypoints(uv, depth, octave, bf, scale_factor)
 
 
+def bundle_adjust_map(mp: Map, kfs: dict[int, KeyFrame], fixed: set[int], pts: np.ndarray, o_kf: np.ndarray,
+                      o_pt: np.ndarray, o_kp: np.ndarray, camera: PinholeCamera, bf: float, scale_factor: float,
+                      iterations: int):
+    """Bundle adjustment of keyframes ``kfs`` and map points ``pts`` (sorted ids) over the observations
+    ``(o_kf, o_pt, o_kp)``, written back into the map; shared by local BA and the global BA after a loop.
+
+    The keyframes in ``fixed`` keep their pose; the others get the optimised one, the points their
+    optimised position; observations that are outliers afterwards are removed from their keyframes
+    and the points' geometry (viewing direction, distance range) is recomputed.
+    Returns the :func:`~dynslam_lab.slam.optimize.local_bundle_adjustment` result.
+    """
+    obs = gather_observations(kfs, o_kf, o_kp, bf, scale_factor)
+    res = local_bundle_adjustment({k: f.T_c_w for k, f in kfs.items()}, fixed, mp.xyz[pts], o_kf,
+                                  np.searchsorted(pts, o_pt), obs, camera, bf, max_nfev=iterations)
+    for k, f in kfs.items():
+        if k not in fixed:
+            f.set_pose(se3_inv(res.T_c_w[k]))
+    mp.xyz[pts] = res.points
+    for k in np.unique(o_kf[res.outlier]):
+        sel = res.outlier & (o_kf == k)
+        mp.keyframes[int(k)].map_point_ids[o_kp[sel]] = -1
+    mp.invalidate()
+    mp.update_geometry(pts)
+    return res
+
+
 def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMappingConfig, bf: float,
                  scale_factor: float) -> dict:
     """Local BA around ``kf``; writes poses and points back, removes outlier observations."""
@@ -228,21 +255,9 @@ def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMapping
     if not fixed_set:
         fixed_set = {min(local)}
     use = np.isin(o_kf, local + fixed)
-    o_kf, o_pt, o_kp = o_kf[use], o_pt[use], o_kp[use]
     kfs = {k: mp.keyframes[k] for k in set(local) | set(fixed)}
-    obs = gather_observations(kfs, o_kf, o_kp, bf, scale_factor)
-    poses = {k: f.T_c_w for k, f in kfs.items()}
-    res = local_bundle_adjustment(poses, fixed_set, mp.xyz[pts], o_kf, np.searchsorted(pts, o_pt), obs, camera, bf,
-                                  max_nfev=cfg.ba_iterations)
-    for k in kfs:
-        if k not in fixed_set:
-            kfs[k].set_pose(se3_inv(res.T_c_w[k]))
-    mp.xyz[pts] = res.points
-    for k in np.unique(o_kf[res.outlier]):
-        sel = res.outlier & (o_kf == k)
-        mp.keyframes[int(k)].map_point_ids[o_kp[sel]] = -1
-    mp.invalidate()
-    mp.update_geometry(pts)
+    res = bundle_adjust_map(mp, kfs, fixed_set, pts, o_kf[use], o_pt[use], o_kp[use], camera, bf, scale_factor,
+                            cfg.ba_iterations)
     return {"ba_points": int(len(pts)), "ba_keyframes": len(local), "ba_fixed": len(fixed_set),
             "ba_outliers": int(res.outlier.sum()), "ba_cost_before": res.cost_before, "ba_cost_after": res.cost_after}
 

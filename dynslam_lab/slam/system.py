@@ -99,7 +99,8 @@ class System:
     detector : object with ``detect(frame) -> Detections``, or None.
     screener : object with ``screen(frame, uv, detections) -> table`` (``.dynamic (N,)`` bool,
         ``.region_mask``), or None (all keypoints static).
-    loop_closer : object with ``on_keyframe(keyframe, map) -> result | None``, or None.
+    loop_closer : object with ``on_keyframe(keyframe, map) -> result | None``, or None. When it
+        has a ``database`` (keyframe BoW index) and a ``vocabulary``, relocalisation queries them.
     """
 
     def __init__(self, camera: PinholeCamera, config=None, detector=None, screener=None, loop_closer=None) -> None:
@@ -115,6 +116,11 @@ class System:
         orb = config.orb
         self.map = Map(orb.scale_factor, orb.n_levels)
         self.tracker = Tracker(camera, self.map, config.tracking, orb.scale_factor)
+        # Relocalisation queries the loop closer's keyframe database (ORB-SLAM2 shares one
+        # database between tracking and loop closing); without one it falls back to brute force.
+        db, voc = getattr(loop_closer, "database", None), getattr(loop_closer, "vocabulary", None)
+        if db is not None and voc is not None and getattr(getattr(loop_closer, "config", None), "enabled", True):
+            self.tracker.database, self.tracker.vocabulary = db, voc
         tc = config.tracking
         self.close_depth = tc.th_depth * tc.bf / camera.fx
         self.mapper = LocalMapper(self.map, camera, config.local_mapping, tc.bf, self.close_depth, orb.scale_factor)

@@ -27,7 +27,9 @@ For each new frame, with only the keypoints the screening stage judged static:
    points are tracked while more than 70 close points could be created, with more than 15
    inliers, and at least ``kf_min_frames`` frames after the last keyframe (always after
    ``kf_max_frames``).
-6. **Relocalisation** when lost (Sec. V-C): descriptor matching against candidate keyframes,
+6. **Relocalisation** when lost (Sec. V-C): candidate keyframes from the keyframe database
+   queried with the frame's bag-of-words vector (``DetectRelocalizationCandidates``; brute force
+   over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
@@ -76,7 +78,7 @@ class TrackingConfig:
     pnp_min_inliers: int = 10  # PnP-RANSAC inliers to accept a pose; ORB-SLAM2 PnPsolver: 10
     reloc_ratio: float = 0.75  # ratio test in relocalisation matching; ORB-SLAM2: 0.75
     reloc_min_matches: int = 15  # matches to try a candidate keyframe; ORB-SLAM2: 15
-    reloc_candidates: int = 20  # keyframes tried per relocalisation (most recent and evenly spaced); ours
+    reloc_candidates: int = 20  # keyframes tried per relocalisation at most (BoW candidates; without a database the most recent and evenly spaced); ours
     kf_min_frames: int = 0  # frames between keyframes at least; ORB-SLAM2 mMinFrames: 0
     kf_max_frames: int = 30  # a keyframe at the latest after this many frames; ORB-SLAM2 mMaxFrames: fps (30)
     kf_ref_ratio: float = 0.6  # tracked / reference keyframe points below this -> keyframe; ours, ORB-SLAM2 RGB-D: 0.75 (see kf_ref_min_obs)
@@ -163,6 +165,10 @@ class Tracker:
         self.n_inliers = 0
         self.local_kf_ids: list[int] = []
         self.method = ""
+        # Place recognition for relocalisation (set by the System from the loop closer), or None.
+        self.database = None  # KeyframeDatabase of the keyframes' BoW vectors
+        self.vocabulary = None  # the Vocabulary those vectors come from
+        self.last_reloc_candidates: list[int] = []  # keyframes tried by the last relocalisation
 
     # -------------------------------------------------------------- helpers
     def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
@@ -303,15 +309,45 @@ class Tracker:
         self._discard_outliers(frame)
         return n
 
-    def relocalize(self, frame: SlamFrame) -> bool:
-        """Try candidate keyframes (recent ones first, then evenly spaced ones)."""
-        kfs = sorted(self.map.keyframes)
+    def relocalisation_candidates(self, frame: SlamFrame) -> list[int]:
+        """Keyframe ids to try for a lost frame, most promising first.
+
+        With a keyframe database and a vocabulary (:attr:`database`, :attr:`vocabulary`, shared
+        with the loop closer) the frame's BoW vector from its static keypoints is queried
+        (ORB-SLAM2 ``DetectRelocalizationCandidates``: keyframes sharing words, scored, grouped
+        with their 10 best covisible keyframes, groups above 0.75 x the best kept), at most
+        ``reloc_candidates`` of them. Without a database, brute force: the ``reloc_candidates / 2``
+        most recent keyframes, then evenly spaced ones.
+        """
+        mp = self.map
+        kfs = sorted(mp.keyframes)
         if not kfs:
-            return False
+            return []
         n = self.cfg.reloc_candidates
+        if self.database is not None and self.vocabulary is not None and len(self.database):
+            bow = self.vocabulary.bow(np.ascontiguousarray(frame.descriptors[frame.static]))
+            if len(bow) == 0:
+                return []
+            memo: dict[int, list[int]] = {}
+
+            def best(i: int) -> list[int]:
+                if i not in memo:
+                    memo[i] = mp.best_covisibles(i, 10) if i in mp.keyframes else []
+                return memo[i]
+
+            culled = [k for k in self.database.ids() if k not in mp.keyframes]
+            cands = self.database.detect_relocalisation_candidates(bow, neighbours=best, exclude=culled)
+            return [c.kf_id for c in cands][:n]
         recent = kfs[-(n // 2) :]
         spread = [kfs[i] for i in np.linspace(0, len(kfs) - 1, n - len(recent)).astype(int)] if len(kfs) > len(recent) else []
-        cands = list(dict.fromkeys(recent[::-1] + spread))
+        return list(dict.fromkeys(recent[::-1] + spread))
+
+    def relocalize(self, frame: SlamFrame) -> bool:
+        """Match the frame to candidate keyframes (:meth:`relocalisation_candidates`), PnP-RANSAC,
+        motion-only BA and the local map; the first candidate reaching ``min_local_inliers_reloc``
+        inliers wins."""
+        cands = self.relocalisation_candidates(frame)
+        self.last_reloc_candidates = cands
         for kid in cands:
             if self._track_against_keyframe(frame, self.map.keyframes[kid], self.cfg.reloc_ratio, self.cfg.pnp_min_inliers):
                 self.ref_kf = self.map.keyframes[kid]

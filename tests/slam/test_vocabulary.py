@@ -263,6 +263,39 @@ def test_database_group_accumulates_neighbours():
     assert (1 in [c.kf_id for c in cands]) == (s1 > 0.75 * 3 * s2)
 
 
+def test_relocalisation_candidates_by_hand():
+    """ORB-SLAM2 ``DetectRelocalizationCandidates``: no keyframe excluded, no s_min; shared words above
+    0.8 x the most, groups of covisible keyframes accumulated, best of each group above 0.75 x best."""
+    rng = np.random.default_rng(11)
+    n_words = 40
+    q = BowVector(np.arange(10), np.full(10, 0.1))
+    db = KeyframeDatabase(n_words)
+    # keyframes 0-2: one place (covisible), sharing 9-10 words with the frame; 3: a lone keyframe
+    # sharing 9 words but weakly; 4: shares 5 words (below 0.8 x 10), 5: none
+    w = {0: np.arange(10), 1: np.arange(1, 10), 2: np.r_[0:5, 6:10], 3: np.arange(9), 4: np.arange(5),
+         5: np.arange(20, 30)}
+    for k, words in w.items():
+        x = rng.random(len(words)) + (1.0 if k < 3 else 0.1)
+        if k == 3:
+            x = np.r_[np.full(len(words) - 1, 0.001), 1.0]  # nearly all weight on one word
+        db.add(k, BowVector(words, x / x.sum()))
+    nb = {0: [1, 2], 1: [0, 2], 2: [0, 1], 3: [], 4: [], 5: []}
+    cands = db.detect_relocalisation_candidates(q, neighbours=lambda i: nb[i])
+    score = {k: bow_score(q, db.bow(k)) for k in w}
+    pool = [k for k in w if len(np.intersect1d(q.words, w[k])) > 0.8 * 10]
+    assert sorted(pool) == [0, 1, 2, 3]
+    group = score[0] + score[1] + score[2]
+    best_of_group = max((0, 1, 2), key=lambda k: score[k])
+    assert cands[0].kf_id == best_of_group and cands[0].accumulated_score == pytest.approx(group)
+    assert [c.kf_id for c in cands] == [best_of_group] + ([3] if score[3] > 0.75 * group else [])
+    assert 4 not in [c.kf_id for c in cands] and 5 not in [c.kf_id for c in cands]
+    # the loop query of the same vector with s_min = 0 and nothing excluded gives the same answer
+    assert db.detect_loop_candidates(q, exclude=(), min_score=0.0, neighbours=lambda i: nb[i]) == cands
+    # excluded (culled) keyframes are never returned
+    assert best_of_group not in [c.kf_id for c in db.detect_relocalisation_candidates(
+        q, neighbours=lambda i: nb[i], exclude=[best_of_group])]
+
+
 def _tiny_sequence(root, n=3, seed=0):
     """A TUM-layout folder of ``n`` textured frames (blurred noise) with constant 2 m depth."""
     rng = np.random.default_rng(seed)
