@@ -119,8 +119,16 @@ class System:
         # Relocalisation queries the loop closer's keyframe database (ORB-SLAM2 shares one
         # database between tracking and loop closing); without one it falls back to brute force.
         db, voc = getattr(loop_closer, "database", None), getattr(loop_closer, "vocabulary", None)
+        self._own_database = None  # the system's BoW index when no loop closer keeps one
         if db is not None and voc is not None and getattr(getattr(loop_closer, "config", None), "enabled", True):
             self.tracker.database, self.tracker.vocabulary = db, voc
+        elif config.tracking.bow_relocalisation:
+            from .keyframe_database import KeyframeDatabase
+            from .vocabulary import default_vocabulary
+
+            voc = default_vocabulary()
+            self._own_database = KeyframeDatabase(voc.n_words)
+            self.tracker.database, self.tracker.vocabulary = self._own_database, voc
         tc = config.tracking
         self.close_depth = tc.th_depth * tc.bf / camera.fx
         self.mapper = LocalMapper(self.map, camera, config.local_mapping, tc.bf, self.close_depth, orb.scale_factor)
@@ -161,6 +169,18 @@ class System:
         self.tracker.ref_kf = kf
         self.tracker.last_kf_frame = sf.index
         return kf, new
+
+    def _index_keyframe(self, kf: KeyFrame) -> None:
+        """Add a keyframe's BoW vector (static keypoints only, as the loop closer does) to the
+        system's own database, and drop the keyframes local mapping has culled."""
+        db = self._own_database
+        for kid in db.ids():
+            if kid not in self.map.keyframes:
+                db.remove(kid)
+        static = np.asarray(kf.static, bool)
+        bow = self.tracker.vocabulary.bow(np.ascontiguousarray(kf.descriptors[static]))
+        if len(bow) and kf.id not in db:
+            db.add(kf.id, bow)
 
     def _initialize(self, sf: SlamFrame, frame: Frame) -> bool:
         n = int((sf.static & np.isfinite(sf.depth)).sum())
@@ -210,6 +230,8 @@ class System:
             t["local_mapping"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None:
             res.is_keyframe, res.keyframe_id = True, kf.id
+            if self._own_database is not None:
+                self._index_keyframe(kf)
             if self.loop_closer is not None:
                 t0 = time.perf_counter()
                 T_ref_c = kf.T_c_w @ sf.T_w_c if sf.T_w_c is not None else None

@@ -78,6 +78,7 @@ class TrackingConfig:
     pnp_min_inliers: int = 10  # PnP-RANSAC inliers to accept a pose; ORB-SLAM2 PnPsolver: 10
     reloc_ratio: float = 0.75  # ratio test in relocalisation matching; ORB-SLAM2: 0.75
     reloc_min_matches: int = 15  # matches to try a candidate keyframe; ORB-SLAM2: 15
+    bow_relocalisation: bool = True  # keep a keyframe BoW database for relocalisation even without loop closing (ours; ORB-SLAM2 always has one)
     reloc_candidates: int = 20  # keyframes tried per relocalisation at most (BoW candidates; without a database the most recent and evenly spaced); ours
     kf_min_frames: int = 0  # frames between keyframes at least; ORB-SLAM2 mMinFrames: 0
     kf_max_frames: int = 30  # a keyframe at the latest after this many frames; ORB-SLAM2 mMaxFrames: fps (30)

@@ -206,3 +206,19 @@ def test_kidnapped_camera_relocalises_through_the_database(loop_seq, half_map):
     # tracking goes on from there
     after = [system.process(loop_seq[i]) for i in range(kidnap + 2, kidnap + 6)]
     assert all(a.tracked for a in after)
+
+
+def test_kidnapped_camera_relocalises_without_loop_closing(loop_seq):
+    """With loop closing off the system keeps its own keyframe database (static words of every
+    keyframe, culled ones dropped), so relocalisation still goes through the bag of words."""
+    system, closer = _run(loop_seq, loop=False, n=N_MAP)
+    assert closer is None and system.tracker.database is not None
+    assert set(system.tracker.database.ids()) == set(system.map.keyframes)
+    kidnap = N_LOOP - 12
+    assert system.process(loop_seq[kidnap]).state == TrackState.LOST
+    res = system.process(loop_seq[kidnap + 1])
+    assert res.state == TrackState.RELOCALIZED and res.method == "relocalization"
+    assert 1 <= len(system.tracker.last_reloc_candidates) <= 5  # BoW candidates, not the 20 of brute force
+    map_t, map_r = _map_error(loop_seq, system.map)
+    dt, dr = _pose_error(_in_map_frame(loop_seq, seq_ts(loop_seq, kidnap + 1)), res.T_w_c)
+    assert dt < map_t + 0.005 and dr < map_r + 0.1
