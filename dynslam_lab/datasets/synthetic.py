@@ -539,15 +539,13 @@ def synthetic_sequence(
 
 def read_moving(root: str | Path) -> dict[float, set[int]]:
     """Read ``moving.txt`` of a synthetic sequence: colour timestamp -> ids of moving instances."""
+    from ..textfile import data_lines
+
     path = Path(root) / "moving.txt"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: moving.txt not found (only synthetic sequences have one)")
     out: dict[float, set[int]] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.split()
+    for lineno, s, parts in data_lines(path, FileNotFoundError, "moving.txt"):
         try:
             out[float(parts[0])] = {int(x) for x in parts[1:]}
         except ValueError:
