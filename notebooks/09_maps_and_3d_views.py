@@ -34,7 +34,6 @@
 
 # %%
 import dataclasses
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -45,7 +44,7 @@ import numpy as np
 from IPython.display import display
 
 from dynslam_lab.datasets import TumSequence
-from dynslam_lab.datasets.synthetic import SyntheticRenderer, synthetic_sequence
+from dynslam_lab.datasets.synthetic import moving_instances, synthetic_sequence, truth_views
 from dynslam_lab.evaluation import Trajectory, compute_ate, compute_rpe, write_tum_trajectory
 from dynslam_lab.features.orb import extract_features
 from dynslam_lab.mapping.dense import DenseMapConfig, build_dense_map, map_quality, static_exclusion_mask, write_dense_map
@@ -59,8 +58,7 @@ from dynslam_lab.viz.widgets import figure_explorer, float_slider, int_slider
 N = 30  # frames of the synthetic walking_xyz preset (two people walking, camera translating)
 root = synthetic_sequence("walking_xyz", n_frames=N, seed=0)
 seq = TumSequence(root)
-instances = json.loads((root / "instances.json").read_text())
-movers = [int(k) for k, v in instances.items() if v["motion"] != "static"]
+movers = moving_instances(root)
 keyframes = list(range(0, N, 3))
 print(seq, "| moving instances:", movers, "| keyframes:", keyframes)
 
@@ -106,16 +104,10 @@ print(f"{len(xyz0)} static points from one keyframe (every {cfg.stride}nd pixel)
 # $\mu + \alpha\sigma$. To score a map we render *exact* depth from the true poses at the
 # keyframes' moments: a point is **on a person** when it projects into a walker's mask at the
 # walker's depth, and its **surface error** is its depth difference to the true surface.
-# (In these first frames the walkers are about 3 m away and cover 1-2 % of the image.)
+# (In these first frames the walkers are about 1 m away and cover 18-24 % of the image.)
 
 # %%
-renderer = SyntheticRenderer("walking_xyz", 0, N)
-views = []
-for i in keyframes:
-    rf = renderer.render(i, noise=False)
-    fv = seq[i]
-    fv.depth = rf.depth_true
-    views.append((fv, rf.T_w_c, np.isin(rf.instance_mask, movers)))
+views = truth_views(root, keyframes)  # (frame with exact depth, true T_w_c, moving mask) per keyframe
 
 
 def keyframe_stream(use_masks):

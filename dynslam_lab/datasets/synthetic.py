@@ -57,6 +57,8 @@ __all__ = [
     "render_sequence",
     "synthetic_sequence",
     "read_moving",
+    "moving_instances",
+    "truth_views",
     "cache_key",
 ]
 
@@ -486,6 +488,41 @@ def render_sequence(
     meta = {"preset": asdict(p), "seed": seed, "n_frames": n, "render_version": RENDER_VERSION}
     (out / "synthetic.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out
+
+
+def moving_instances(root: str | Path) -> list[int]:
+    """Ids of the instances of a rendered sequence that move at some time (``instances.json``)."""
+    path = Path(root) / "instances.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: instances.json not found (only synthetic sequences have one)")
+    return sorted(int(k) for k, v in json.loads(path.read_text()).items() if v["motion"] != "static")
+
+
+def truth_views(root: str | Path, frames) -> list[tuple]:
+    """Truth views of frames of a rendered sequence, what :func:`dynslam_lab.mapping.dense.map_quality` scores a map with.
+
+    The renderer is rebuilt from the sequence's ``synthetic.json``; for each frame index: the frame
+    as stored with its depth replaced by the renderer's exact (noise-free) depth, the true
+    ``T_w_c``, and the mask of the moving instances at that moment.
+    """
+    from .tum import TumSequence
+
+    root = Path(root)
+    meta_path = root / "synthetic.json"
+    if not meta_path.is_file():
+        raise FileNotFoundError(f"{meta_path}: synthetic.json not found (only synthetic sequences have one)")
+    meta = json.loads(meta_path.read_text())
+    preset = ScenePreset(**{**meta["preset"], "depth": DepthNoise(**meta["preset"]["depth"])})
+    renderer = SyntheticRenderer(preset, meta["seed"], meta["n_frames"])
+    movers = moving_instances(root)
+    seq = TumSequence(root)
+    views = []
+    for i in frames:
+        rf = renderer.render(int(i), noise=False)
+        f = seq[int(i)]
+        f.depth = rf.depth_true
+        views.append((f, rf.T_w_c, np.isin(rf.instance_mask, movers)))
+    return views
 
 
 def _cache_root(cache_dir: str | Path | None) -> Path:

@@ -380,3 +380,22 @@ def test_cli_lists_and_renders(tmp_path, capsys):
     assert len(TumSequence(tmp_path / "s")) == 2
     assert main(["synth", "no_such_preset", str(tmp_path / "x")]) == 1
     assert "unknown preset" in capsys.readouterr().err
+
+
+def test_truth_views_rebuild_the_renderer_from_the_sequence():
+    """truth_views: the stored frame, its true pose (ground truth file), the exact depth of a fresh
+    renderer, and the mask of the instances instances.json calls moving."""
+    from dynslam_lab.datasets.synthetic import SyntheticRenderer, moving_instances, synthetic_sequence, truth_views
+    from dynslam_lab.datasets.tum import TumSequence
+
+    root = synthetic_sequence("walking_xyz", 30, 0)
+    seq = TumSequence(root)
+    movers = moving_instances(root)
+    assert movers and all(seq.instance_classes[m] == "person" for m in movers)
+    views = truth_views(root, [4, 20])
+    rf = SyntheticRenderer("walking_xyz", 0, 30).render(20, noise=False)
+    f, T, mask = views[1]
+    assert f.index == 20
+    np.testing.assert_array_equal(f.depth, rf.depth_true)
+    np.testing.assert_allclose(T, seq.gt_pose(20), atol=1e-5)
+    np.testing.assert_array_equal(mask, np.isin(seq[20].instance_mask, movers))

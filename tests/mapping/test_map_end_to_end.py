@@ -46,18 +46,9 @@ def test_dynslam_run_map_of_walking_preset_meets_targets(tmp_path):
     xyz_w = xyz @ S[:3, :3].T + S[:3, 3]
 
     # truth views at (up to 12 of) the run's keyframes: exact depth, true pose, walking people
-    inst = json.loads((root / "instances.json").read_text())
-    movers = [int(k) for k, v in inst.items() if v["motion"] != "static"]
     pick = kf_frames[np.unique(np.linspace(0, len(kf_frames) - 1, min(12, len(kf_frames))).round().astype(int))]
-    renderer = synthetic.SyntheticRenderer("walking_xyz", 0, N_FRAMES)
-    views, people = [], []
-    for i in pick:
-        rf = renderer.render(int(i), noise=False)
-        f = seq[int(i)]
-        f.depth = rf.depth_true
-        mask = np.isin(rf.instance_mask, movers)
-        views.append((f, rf.T_w_c, mask))
-        people.append(mask.mean())
+    views = synthetic.truth_views(root, pick)
+    people = [mask.mean() for _, _, mask in views]
     q = map_quality(xyz_w, views)
     print(f"walking_xyz {N_FRAMES} fr, full screening: ATE {ate:.4f} m, {len(kf_frames)} keyframes, map {q.total} "
           f"points ({q.scored} scored), {100 * q.dynamic_fraction:.2f} % on people, median surface error "
