@@ -28,14 +28,22 @@ frame's BoW vector against every keyframe, steps 2-4 without exclusion and witho
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
 from .vocabulary import BowVector
 
-__all__ = ["KeyframeDatabase", "LoopCandidate", "CandidateQueryConfig"]
+__all__ = ["KeyframeDatabase", "LoopCandidate", "CandidateQueryConfig", "static_bow"]
+
+
+def static_bow(vocabulary, frame) -> BowVector:
+    """BoW vector of a frame or keyframe from its *static* keypoints only (``frame.descriptors``,
+    ``frame.static``): a person walking through two views must not make them look alike. What
+    the database stores for a keyframe and what relocalisation queries it with."""
+    static = np.asarray(frame.static, bool)
+    return vocabulary.bow(np.ascontiguousarray(frame.descriptors[static]))
 
 
 @dataclass(frozen=True)
@@ -138,6 +146,12 @@ class KeyframeDatabase:
         self._size += n
         self._max_id = max(self._max_id, kf_id)
         self._bows[kf_id] = bow
+
+    def prune(self, live: Container[int]) -> None:
+        """Forget every keyframe not in ``live`` (the map's keyframes: the culled ones go)."""
+        for kf_id in self.ids():
+            if kf_id not in live:
+                self.remove(kf_id)
 
     def remove(self, kf_id: int) -> None:
         """Forget a keyframe (culled); its entries are skipped by later queries."""

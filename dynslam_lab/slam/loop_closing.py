@@ -53,7 +53,7 @@ from scipy.spatial import cKDTree
 from ..features.matching import TH_LOW, hamming_pairs, match_descriptors
 from ..geometry.align import AlignmentError, umeyama_alignment
 from ..geometry.se3 import make_pose, se3_inv, transform_points
-from .keyframe_database import CandidateQueryConfig, KeyframeDatabase, LoopCandidate
+from .keyframe_database import CandidateQueryConfig, KeyframeDatabase, LoopCandidate, static_bow
 from .pose_graph import PoseGraphConfig, correct_points, optimize_pose_graph
 from .vocabulary import BowVector, Vocabulary, bow_score, default_vocabulary
 
@@ -526,8 +526,7 @@ class LoopCloser:
 
     def keyframe_bow(self, kf) -> BowVector:
         """BoW vector of a keyframe from its static keypoints only."""
-        static = np.asarray(kf.static, bool)
-        return self.vocabulary.bow(np.ascontiguousarray(kf.descriptors[static]))
+        return static_bow(self.vocabulary, kf)
 
     # ------------------------------------------------------------------ entry point
     def on_keyframe(self, keyframe, map) -> LoopResult | None:  # noqa: A002 - the contract's name
@@ -541,9 +540,7 @@ class LoopCloser:
             return None
         t0 = time.perf_counter()
         bow = self.keyframe_bow(keyframe)
-        for kid in self.database.ids():
-            if kid not in map.keyframes:
-                self.database.remove(kid)
+        self.database.prune(map.keyframes)
         result = None
         self.last_candidates = []
         far_enough = keyframe.id >= max(cfg.min_keyframes_between, self._last_loop_kf + cfg.min_keyframes_between)

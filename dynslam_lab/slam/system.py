@@ -31,6 +31,7 @@ from ..evaluation.trajectory import Trajectory
 from ..features.orb import Features, extract_features
 from ..geometry.se3 import se3_inv, transform_points
 from .frame import KeyFrame, SlamFrame, make_slam_frame
+from .keyframe_database import KeyframeDatabase, static_bow
 from .local_mapping import LocalMapper, create_points_from_depth
 from .map import Map
 from .tracking import Tracker, TrackState
@@ -123,7 +124,6 @@ class System:
         if db is not None and voc is not None and getattr(getattr(loop_closer, "config", None), "enabled", True):
             self.tracker.database, self.tracker.vocabulary = db, voc
         elif config.tracking.bow_relocalisation:
-            from .keyframe_database import KeyframeDatabase
             from .vocabulary import default_vocabulary
 
             voc = default_vocabulary()
@@ -174,11 +174,8 @@ class System:
         """Add a keyframe's BoW vector (static keypoints only, as the loop closer does) to the
         system's own database, and drop the keyframes local mapping has culled."""
         db = self._own_database
-        for kid in db.ids():
-            if kid not in self.map.keyframes:
-                db.remove(kid)
-        static = np.asarray(kf.static, bool)
-        bow = self.tracker.vocabulary.bow(np.ascontiguousarray(kf.descriptors[static]))
+        db.prune(self.map.keyframes)
+        bow = static_bow(self.tracker.vocabulary, kf)
         if len(bow) and kf.id not in db:
             db.add(kf.id, bow)
 

@@ -47,6 +47,7 @@ from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.se3 import se3_inv, transform_points
 from .frame import KeyFrame, SlamFrame
+from .keyframe_database import static_bow
 from .map import Map
 from .optimize import Observations, nearest_rotation, optimize_pose
 
@@ -326,7 +327,7 @@ class Tracker:
             return []
         n = self.cfg.reloc_candidates
         if self.database is not None and self.vocabulary is not None and len(self.database):
-            bow = self.vocabulary.bow(np.ascontiguousarray(frame.descriptors[frame.static]))
+            bow = static_bow(self.vocabulary, frame)
             if len(bow) == 0:
                 return []
             memo: dict[int, list[int]] = {}

@@ -214,9 +214,11 @@ def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = 
         run.dynamic_xyz = dp["xyz"].reshape(-1, 3).astype(np.float64)
     if (outdir / "map.ply").is_file():
         run.dense_path = outdir / "map.ply"
-        run.dense_count = read_ply_header(run.dense_path).n_vertex
         if dense:
             run.dense_xyz, run.dense_rgb = read_ply(run.dense_path)
+            run.dense_count = len(run.dense_xyz)
+        else:
+            run.dense_count = read_ply_header(run.dense_path).n_vertex
     thumbs_dir = outdir / "thumbs"
     if thumbs_dir.is_dir():
         for p in thumbs_dir.glob("*.jpg"):
@@ -412,16 +414,16 @@ class SceneHandles:
         """Block until every stage has been sent; False if ``timeout`` (s) ran out first."""
         return self._complete.wait(timeout)
 
-    def stream(self, stop: threading.Event | None = None) -> None:
-        """Send the held-back stages one after another, each after its delay (a thread's target)."""
-        stop = stop or self._stop
+    def stream(self) -> None:
+        """Send the held-back stages one after another, each after its delay, until
+        :meth:`close` (the target of :meth:`start_stream`'s thread)."""
         while True:
             with self._lock:
                 if not self.deferred:
                     self._complete.set()
                     return
                 delay = self.deferred[0][0]
-            if stop.wait(delay):
+            if self._stop.wait(delay):
                 return
             self.send_next_stage()
 
@@ -495,6 +497,16 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
     server.initial_camera.up = tuple(up)
     streaming = config.gui and (config.defer_layers > 0 or config.defer_dense > 0)
 
+    def some(a) -> bool:
+        return a is not None and len(a) > 0
+
+    later = {  # the layers of the later stages that this run has
+        "keyframes": some(run.kf_poses),
+        "sparse": some(run.map_xyz),
+        "dynamic": some(run.dynamic_xyz),
+        "dense": (some(run.dense_xyz) or run.dense_count > 0) and config.max_dense_points > 0,
+    }
+
     # ---- stage 1: the trajectories and loop edges (small, and what the first picture shows)
     for key, traj in (("ground_truth", run.ground_truth), ("estimate", run.trajectory)):
         if traj is not None and len(traj) >= 2:
@@ -527,26 +539,24 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
                 color=COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
 
     def send_sparse() -> None:
-        if run.map_xyz is not None and len(run.map_xyz):
+        if later["sparse"]:
             colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
             h.layer("sparse", scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
                                                     point_size=config.point_size_sparse, point_shading="flat"))
-        if run.dynamic_xyz is not None and len(run.dynamic_xyz):
+        if later["dynamic"]:
             h.layer("dynamic", scene.add_point_cloud("/map/sparse_dynamic", run.dynamic_xyz.astype(np.float32),
                                                      np.array(COLORS["dynamic"], np.uint8),
                                                      point_size=config.point_size_sparse, point_shading="flat"))
 
     stage2 = []
-    if run.kf_poses is not None and len(run.kf_poses):
+    if later["keyframes"]:
         stage2.append(send_keyframes)
-    if (run.map_xyz is not None and len(run.map_xyz)) or (run.dynamic_xyz is not None and len(run.dynamic_xyz)):
+    if later["sparse"] or later["dynamic"]:
         stage2.append(send_sparse)
 
     # ---- stage 3: the dense map (read in the background if it is still on disk)
-    has_dense = (run.dense_xyz is not None and len(run.dense_xyz) > 0) or run.dense_count > 0
-    has_dense = has_dense and config.max_dense_points > 0
     loader, load_errors = None, []
-    if has_dense and streaming and run.dense_xyz is None:
+    if later["dense"] and streaming and run.dense_xyz is None:
         def read_dense() -> None:
             try:
                 run.load_dense()
@@ -573,13 +583,13 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
 
     if stage2:
         h.deferred.append((config.defer_layers, stage2))
-    if has_dense:
+    if later["dense"]:
         h.deferred.append((config.defer_dense, [send_dense]))
 
     # ---- playback: the frames of the trajectory (or the keyframes when there is none)
     if run.trajectory is not None and len(run.trajectory):
         poses, stamps = run.trajectory.poses, run.trajectory.timestamps
-    elif run.kf_poses is not None and len(run.kf_poses):
+    elif later["keyframes"]:
         poses = run.kf_poses
         stamps = np.arange(len(poses), dtype=float)
     else:
@@ -632,15 +642,7 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
                 on_frame(h.slider.value)
 
     if config.gui:
-        present = set(h.nodes)
-        if run.kf_poses is not None and len(run.kf_poses):
-            present.add("keyframes")
-        if run.map_xyz is not None and len(run.map_xyz):
-            present.add("sparse")
-        if run.dynamic_xyz is not None and len(run.dynamic_xyz):
-            present.add("dynamic")
-        if has_dense:
-            present.add("dense")
+        present = set(h.nodes) | {key for key, there in later.items() if there}
         for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
             if key in present:
                 cb = server.gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
@@ -648,6 +650,8 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
 
     h.build_seconds = time.perf_counter() - t0
     h.stage_seconds.append(h.build_seconds)
+    if not h.deferred:
+        h._complete.set()  # nothing held back: complete without waiting for a browser
     if not streaming:
         h.add_deferred()
     else:
