@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -39,6 +41,28 @@ def find_chromium() -> str | None:
     return None
 
 
+def _running_in_group(pgid: int) -> bool:
+    """Whether a process of group ``pgid`` still runs (zombies, which write nothing, do not count).
+
+    Reads ``/proc`` (Linux); elsewhere asks the kernel with signal 0, which counts zombies too.
+    """
+    proc = Path("/proc")
+    if not proc.is_dir():
+        try:
+            os.killpg(pgid, 0)
+            return True
+        except ProcessLookupError:
+            return False
+    for stat in proc.glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()  # after "pid (comm)": state ppid pgrp ...
+        except (OSError, IndexError):
+            continue  # the process ended while we looked
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            return True
+    return False
+
+
 class HeadlessChromium:
     """A headless Chromium with DevTools on a loopback port; use as a context manager.
 
@@ -61,6 +85,7 @@ class HeadlessChromium:
             [exe, *CHROMIUM_FLAGS, f"--user-data-dir={self._profile.name}", f"--remote-debugging-port={self.port}",
              "--remote-debugging-address=127.0.0.1", f"--window-size={self.width},{self.height}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True,  # its own process group: close() stops the helpers it starts too
         )
         self._wait_devtools()
 
@@ -83,7 +108,12 @@ class HeadlessChromium:
         self.close()
 
     def close(self) -> None:
-        """Stop the browser (and its child processes, which exit with it)."""
+        """Stop the browser and every process of its group, then delete its profile.
+
+        Chromium's helper processes (GPU, renderer, crash handler) can outlive the main one for a
+        moment and still write into the profile; deleting it before they are gone fails with
+        "Directory not empty". So the whole process group is stopped and waited for first.
+        """
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
@@ -91,6 +121,17 @@ class HeadlessChromium:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(timeout=20)
+        pgid = self.proc.pid  # the group's id (start_new_session)
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            if not _running_in_group(pgid):
+                break
+            try:
+                os.killpg(pgid, sig)
+            except ProcessLookupError:
+                break
+            t0 = time.monotonic()
+            while _running_in_group(pgid) and time.monotonic() - t0 < 5.0:
+                time.sleep(0.05)
         self._profile.cleanup()
 
     def poll_screenshots(self, url: str, done: Callable[[np.ndarray], bool], timeout: float = 60.0,
