@@ -68,7 +68,7 @@ def main() -> int:
         print(f"| start viser server | {r[1]:.3f} |")
         print(f"| build_scene (send all layers) | {r[2]:.3f} |")
 
-        from dynslam_lab.viz.browser import HeadlessChromium, find_chromium
+        from dynslam_lab.viz.browser import HeadlessChromium, colour_pixels, find_chromium, outside_overlays
 
         browser = HeadlessChromium(1000, 700) if find_chromium() else None  # its own start-up is not the viewer's
         try:
@@ -91,13 +91,9 @@ def main() -> int:
 
                 def masks(img):
                     px = img.astype(int)
-                    red = np.abs(px - COLORS["estimate"]).max(axis=2) < 60
-                    orange = np.abs(px - COLORS["keyframe"]).max(axis=2) < 50
-                    grey = (px.max(axis=2) - px.min(axis=2) <= 2) & (px[..., 0] >= 115) & (px[..., 0] <= 225)
-                    for m in (red, orange, grey):
-                        m[:320, -360:] = False  # GUI panel
-                        m[:160, :320] = False  # software-rendering notice
-                    return int(red.sum()), int(orange.sum()), int(grey.sum())
+                    grey = outside_overlays((px.max(axis=2) - px.min(axis=2) <= 2) & (px[..., 0] >= 115) & (px[..., 0] <= 225))
+                    return (int(colour_pixels(img, COLORS["estimate"], 60).sum()),
+                            int(colour_pixels(img, COLORS["keyframe"], 50).sum()), int(grey.sum()))
 
                 def drawn(img):
                     t = time.perf_counter() - t0

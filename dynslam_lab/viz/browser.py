@@ -23,13 +23,27 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["find_chromium", "HeadlessChromium"]
+__all__ = ["find_chromium", "HeadlessChromium", "colour_pixels", "outside_overlays"]
 
 CHROMIUM_FLAGS = (
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
     "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--hide-scrollbars",
 )
+
+
+def outside_overlays(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (H, W) of a viewer screenshot with viser's own overlays cleared (in place): the GUI
+    panel (top right, 360 x 320 px) and the "software WebGL rendering" notice (top left, 320 x 160 px)."""
+    mask[:320, -360:] = False
+    mask[:160, :320] = False
+    return mask
+
+
+def colour_pixels(img: np.ndarray, rgb, tol: int) -> np.ndarray:
+    """Pixels of a viewer screenshot within ``tol`` (max over channels) of colour ``rgb``,
+    outside viser's overlays. ``(H, W)`` bool."""
+    return outside_overlays(np.abs(img.astype(int) - np.asarray(rgb, int)).max(axis=2) < tol)
 
 
 def find_chromium() -> str | None:

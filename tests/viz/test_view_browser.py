@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from dynslam_lab.viz.browser import HeadlessChromium, find_chromium
+from dynslam_lab.viz.browser import HeadlessChromium, colour_pixels, find_chromium
 from dynslam_lab.viz.demo_run import write_demo_run
 from dynslam_lab.viz.viser_scene import COLORS, free_port, initial_view, load_run
 
@@ -22,10 +22,7 @@ VISER_DEFAULT_FOV_Y = np.deg2rad(75.0)  # viser's initial camera field of view (
 
 def _red_mask(img: np.ndarray) -> np.ndarray:
     """Pixels of the estimate's colour, outside the GUI panel and the software-WebGL notice."""
-    red = np.abs(img.astype(int) - COLORS["estimate"]).max(axis=2) < 60
-    red[:320, WIN_W - 360 :] = False  # the GUI panel (top right)
-    red[:160, :320] = False  # the "software WebGL rendering" notice (top left)
-    return red
+    return colour_pixels(img, COLORS["estimate"], 60)
 
 
 def _expected_pixels(run) -> np.ndarray:
@@ -97,10 +94,7 @@ def test_dynslam_view_renders_the_trajectory(tmp_path):
 
 
 def _orange_mask(img: np.ndarray) -> np.ndarray:
-    orange = np.abs(img.astype(int) - COLORS["keyframe"]).max(axis=2) < 50
-    orange[:320, WIN_W - 360 :] = False
-    orange[:160, :320] = False
-    return orange
+    return colour_pixels(img, COLORS["keyframe"], 50)
 
 
 @pytest.mark.slow
