@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     from dynslam_lab.datasets.synthetic import synthetic_sequence
     from dynslam_lab.datasets.tum import TumSequence
     from dynslam_lab.detection import build_detector
-    from dynslam_lab.dynamic.scoring import ScoringScreener
+    from dynslam_lab.experiments.scoring import ScoringScreener
     from dynslam_lab.dynamic.screening import build_screener
     from dynslam_lab.features.orb import extract_features
 

@@ -41,7 +41,8 @@ from dynslam_lab.detection import build_detector
 from dynslam_lab.detection.coco import is_apriori_dynamic
 from dynslam_lab.dynamic.depth_ransac import DepthRansacConfig, adaptive_iterations, screen_boxes
 from dynslam_lab.dynamic.plots import draw_keypoints
-from dynslam_lab.dynamic.scoring import score_keypoints, truth_dynamic
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.experiments.scoring import score_keypoints
 from dynslam_lab.dynamic.table import depth_at
 from dynslam_lab.features.orb import extract_features
 

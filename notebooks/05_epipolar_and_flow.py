@@ -41,7 +41,8 @@ from dynslam_lab.dynamic.epipolar import EpipolarConfig, LkConfig, epipolar_chec
 from dynslam_lab.dynamic.flow import FlowConfig, flow_regions
 from dynslam_lab.dynamic.multiview import MultiViewConfig, multiview_check
 from dynslam_lab.dynamic.plots import draw_keypoints
-from dynslam_lab.dynamic.scoring import score_keypoints, truth_dynamic
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.experiments.scoring import score_keypoints
 from dynslam_lab.dynamic.semantic import semantic_prior
 from dynslam_lab.dynamic.table import depth_at
 from dynslam_lab.features.orb import extract_features

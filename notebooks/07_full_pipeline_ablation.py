@@ -33,12 +33,13 @@ from IPython.display import Markdown, display
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.datasets.tum import TumSequence
 from dynslam_lab.detection import build_detector
-from dynslam_lab.dynamic.ablation import ablation_markdown, run_ablation
+from dynslam_lab.experiments.ablation import ablation_markdown, run_ablation
 from dynslam_lab.dynamic.config import ScreeningConfig
 from dynslam_lab.dynamic.epipolar import EpipolarConfig
 from dynslam_lab.dynamic.multiview import MultiViewConfig
 from dynslam_lab.dynamic.plots import draw_table
-from dynslam_lab.dynamic.scoring import score_keypoints, truth_dynamic
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.experiments.scoring import score_keypoints
 from dynslam_lab.dynamic.screening import build_screener
 from dynslam_lab.features.orb import extract_features
 

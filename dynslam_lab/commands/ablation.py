@@ -52,7 +52,7 @@ def split_filters(text: str) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from ..config import Config, load_config
-    from ..dynamic.ablation import run_ablation
+    from ..experiments.ablation import run_ablation
 
     config = Config()
     if args.config:

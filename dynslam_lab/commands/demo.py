@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..dynamic.ablation import DEFAULT_FILTERS, run_ablation
+    from ..experiments.ablation import DEFAULT_FILTERS, run_ablation
 
     if args.frames < 10:
         raise ValueError(f"--frames must be at least 10, got {args.frames}")

@@ -26,6 +26,8 @@ class Frame:
     T_w_c_gt : ``(4, 4)`` ground-truth pose (camera to world) when known, else None.
     instance_mask : ``(H, W)`` int32 instance ids (0 = background), synthetic data only.
     instance_classes : instance id -> COCO class name, synthetic data only.
+    moving_ids : ids of the instances that move in this frame (the renderer's ``moving.txt``),
+        synthetic data only; None when unknown.
     rgb_path, depth_path : files the images came from (for messages).
     """
 
@@ -37,6 +39,7 @@ class Frame:
     T_w_c_gt: np.ndarray | None = None
     instance_mask: np.ndarray | None = None
     instance_classes: dict[int, str] = field(default_factory=dict)
+    moving_ids: frozenset[int] | None = None
     rgb_path: Path | None = None
     depth_path: Path | None = None
 

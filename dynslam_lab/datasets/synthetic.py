@@ -56,7 +56,6 @@ __all__ = [
     "render_frame",
     "render_sequence",
     "synthetic_sequence",
-    "read_moving",
     "moving_instances",
     "truth_views",
     "cache_key",
@@ -572,19 +571,3 @@ def synthetic_sequence(
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return final
-
-
-def read_moving(root: str | Path) -> dict[float, set[int]]:
-    """Read ``moving.txt`` of a synthetic sequence: colour timestamp -> ids of moving instances."""
-    from ..textfile import data_lines
-
-    path = Path(root) / "moving.txt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: moving.txt not found (only synthetic sequences have one)")
-    out: dict[float, set[int]] = {}
-    for lineno, s, parts in data_lines(path, FileNotFoundError, "moving.txt"):
-        try:
-            out[float(parts[0])] = {int(x) for x in parts[1:]}
-        except ValueError:
-            raise ValueError(f"{path}:{lineno}: expected 'timestamp id id ...', got {s!r}") from None
-    return out

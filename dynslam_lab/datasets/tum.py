@@ -182,6 +182,8 @@ class TumSequence:
                 "check rgb.txt/depth.txt timestamps or pass a larger max_diff"
             )
         self.instance_classes = self._read_instances()
+        self._moving = self._read_moving()
+        self._moving_ts = np.fromiter(self._moving, dtype=np.float64) if self._moving else np.zeros(0)
         self.groundtruth = self._read_groundtruth()
         self._gt_index = self._associate_gt()
 
@@ -221,6 +223,19 @@ class TumSequence:
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{p}: invalid JSON ({exc})") from exc
         return {int(k): (v["class"] if isinstance(v, dict) else str(v)) for k, v in data.items()}
+
+    def _read_moving(self) -> dict[float, frozenset[int]] | None:
+        p = self.root / "moving.txt"
+        return read_moving(self.root) if p.is_file() else None
+
+    def _moving_ids(self, ts: float) -> frozenset[int] | None:
+        """The ids moving at colour timestamp ``ts`` (nearest ``moving.txt`` row), or None."""
+        if self._moving is None:
+            return None
+        if not self._moving:
+            return frozenset()
+        j = int(np.argmin(np.abs(self._moving_ts - ts)))
+        return self._moving[float(self._moving_ts[j])]
 
     def _read_groundtruth(self):
         p = self.root / "groundtruth.txt"
@@ -274,6 +289,7 @@ class TumSequence:
             T_w_c_gt=self.gt_pose(index),
             instance_mask=mask,
             instance_classes=dict(self.instance_classes),
+            moving_ids=self._moving_ids(e.ts) if mask is not None else None,
             rgb_path=e.rgb,
             depth_path=e.depth,
         )
@@ -284,3 +300,16 @@ class TumSequence:
 
     def __repr__(self) -> str:
         return f"TumSequence({str(self.root)!r}, frames={len(self)}, camera={self.camera.name})"
+
+
+def read_moving(root: str | Path) -> dict[float, frozenset[int]]:
+    """Read ``moving.txt`` of a synthetic sequence: colour timestamp -> ids of the instances that
+    move in that frame (``docs/synthetic.md``)."""
+    path = Path(root) / "moving.txt"
+    out: dict[float, frozenset[int]] = {}
+    for lineno, s, parts in data_lines(path, FileNotFoundError, "moving.txt (only synthetic sequences have one)"):
+        try:
+            out[float(parts[0])] = frozenset(int(x) for x in parts[1:])
+        except ValueError:
+            raise ValueError(f"{path}:{lineno}: expected 'timestamp id id ...', got {s!r}") from None
+    return out

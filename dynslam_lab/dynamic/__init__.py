@@ -12,13 +12,16 @@ One module per method of the four papers, each runnable on one frame, chained by
 * :mod:`.motion_probability` -- ASG-SLAM's restoration while delta = m/n < delta_1 (seed 004);
 * :mod:`.geometric_rule` -- seed 002's high/medium/low level rule;
 * :mod:`.inpainting` -- background inpainting from earlier keyframes, for display (seed 003);
-* :mod:`.scoring` -- precision/recall against the synthetic truth; :mod:`.ablation` -- the tables.
+* :mod:`.oracle` -- perfect screening from the synthetic truth (and the truth lookups).
+
+Scores against the truth and the ablation tables are experiments: :mod:`dynslam_lab.experiments`.
 
 Submodules import OpenCV/scipy lazily where they can; import what you need from them.
 """
 
 from .config import FILTER_PRESETS, STAGES, ScreeningConfig
-from .screening import FILTERS, OracleScreener, Screener, build_screener, parse_filters
+from .oracle import OracleScreener
+from .screening import FILTERS, Screener, build_screener, parse_filters
 from .table import KeypointTable
 
 __all__ = [

@@ -40,9 +40,10 @@ from dataclasses import replace
 import numpy as np
 
 from .config import FILTER_PRESETS, STAGES, ScreeningConfig
+from .oracle import OracleScreener
 from .table import KeypointTable, check_uv, depth_at
 
-__all__ = ["Screener", "OracleScreener", "build_screener", "parse_filters", "FILTERS"]
+__all__ = ["Screener", "build_screener", "parse_filters", "FILTERS"]
 
 #: The named filters.
 FILTERS = (*FILTER_PRESETS, "oracle")
@@ -287,43 +288,6 @@ class Screener:
             uv=uv, depth=z, class_id=sem.class_id, instance=sem.instance, motion_prob=sem.motion_prob,
             dynamic=dynamic, reason=reason, stages=stages, values=values, restored=restored,
             region_mask=region_mask, timings_ms=timings,
-        )
-
-
-class OracleScreener:
-    """Perfect screening from the synthetic truth: a keypoint is dynamic when its pixel lies on an
-    instance that moves in this frame (see :func:`dynslam_lab.dynamic.scoring.truth_dynamic`)."""
-
-    stages = ("oracle",)
-    name = "oracle"
-
-    def __init__(self, config: ScreeningConfig | None = None):
-        self.config = config or ScreeningConfig()
-
-    def reset(self) -> None:
-        """Nothing to forget."""
-
-    def screen(self, frame, uv: np.ndarray, detections=None) -> KeypointTable:
-        from .scoring import moving_mask
-
-        uv = check_uv(uv)
-        t0 = time.perf_counter()
-        mask = moving_mask(frame)
-        if mask is None:
-            raise ValueError(
-                f"oracle screening needs a synthetic sequence with instance masks; frame {frame.index} "
-                f"({frame.rgb_path}) has none"
-            )
-        from .table import values_at
-
-        dyn = values_at(mask, uv, outside=False).astype(bool)
-        inst = values_at(frame.instance_mask, uv, outside=0).astype(np.int64)
-        n = len(uv)
-        reason = np.where(dyn, "oracle", "").astype(object)
-        return KeypointTable(
-            uv=uv, depth=depth_at(frame.depth, uv), class_id=np.full(n, -1), instance=np.where(inst > 0, inst, -1),
-            motion_prob=np.zeros(n), dynamic=dyn, reason=reason, stages={"oracle": dyn.copy()},
-            region_mask=mask, timings_ms={"total": _ms(t0)},
         )
 
 

@@ -17,11 +17,11 @@ from dynslam_lab.datasets.synthetic import (
     camera_pose,
     disparity_step,
     nguyen_sigma,
-    read_moving,
     render_frame,
     render_sequence,
     synthetic_sequence,
 )
+from dynslam_lab.datasets.tum import read_moving
 from dynslam_lab.geometry.se3 import rotation_angle_deg, se3_inv
 
 N_SEQ = 6  # frames of the short sequences written to disk

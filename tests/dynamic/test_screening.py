@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from dynslam_lab.dynamic.config import ScreeningConfig
-from dynslam_lab.dynamic.scoring import KeypointScore, ScoringScreener, score_keypoints, truth_dynamic
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.experiments.scoring import KeypointScore, ScoringScreener, score_keypoints
 from dynslam_lab.dynamic.screening import OracleScreener, Screener, build_screener, parse_filters
 from dynslam_lab.features.orb import extract_features
 from tests.dynamic.scenes import two_layer_frames

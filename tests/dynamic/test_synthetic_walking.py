@@ -20,7 +20,7 @@ def walking():
 
 
 def _score(name, data, config=None):
-    from dynslam_lab.dynamic.scoring import ScoringScreener
+    from dynslam_lab.experiments.scoring import ScoringScreener
     from dynslam_lab.dynamic.screening import build_screener
 
     s = ScoringScreener(build_screener(name, config))
@@ -37,7 +37,7 @@ def test_full_filter_meets_the_keypoint_targets(walking):
     # every stage of the chain ran after the first frame
     assert {"semantic", "epipolar", "multiview", "flow", "restoration"} <= set(tables[-1].stages)
     # the region mask covers the moving people
-    from dynslam_lab.dynamic.scoring import moving_mask
+    from dynslam_lab.dynamic.oracle import moving_mask
 
     f = walking[-1][0]
     m = moving_mask(f)

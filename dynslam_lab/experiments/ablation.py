@@ -9,7 +9,7 @@ synthetic sequences, ``oracle`` = perfect masks) and reports per filter and sequ
 * ATE RMSE (m) after SE(3) alignment and its improvement over ``none``
   (``(ATE_none - ATE) / ATE_none``, the papers' "improvement");
 * per-keypoint precision and recall of the dynamic verdict against the synthetic truth
-  (:mod:`dynslam_lab.dynamic.scoring`), which none of the papers could measure on TUM;
+  (:mod:`dynslam_lab.experiments.scoring`), which none of the papers could measure on TUM;
 * tracked/lost frames and the median screening time per frame.
 
 Results go to ``OUTDIR/ablation.csv`` (one row per run) and ``OUTDIR/ablation.md`` (ATE table
@@ -70,7 +70,7 @@ def run_ablation(
     from ..datasets.tum import TumSequence
     from ..slam.runner import run_sequence
     from .scoring import ScoringScreener
-    from .screening import FILTERS, build_screener
+    from ..dynamic.screening import FILTERS, build_screener
 
     if isinstance(seqdirs, (str, Path)):
         seqdirs = [seqdirs]

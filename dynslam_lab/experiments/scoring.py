@@ -21,15 +21,13 @@ summed over all frames of a run (micro-average), so frames with many keypoints w
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from .table import check_uv, values_at
+from ..dynamic.oracle import truth_dynamic
+from ..dynamic.table import KeypointTable, depth_at
 
-__all__ = ["KeypointScore", "moving_ids", "moving_mask", "truth_dynamic", "score_keypoints", "ScoringScreener"]
-
-_MOVING_CACHE: dict[Path, object] = {}
+__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener"]
 
 
 @dataclass
@@ -70,60 +68,6 @@ def score_keypoints(predicted: np.ndarray, truth: np.ndarray) -> KeypointScore:
     return KeypointScore(int((p & t).sum()), int((p & ~t).sum()), int((~p & t).sum()), int((~p & ~t).sum()))
 
 
-def _sequence_root(frame) -> Path | None:
-    if getattr(frame, "rgb_path", None) is None:
-        return None
-    return Path(frame.rgb_path).resolve().parent.parent
-
-
-def moving_ids(frame) -> set[int] | None:
-    """Ids of the instances that move in ``frame`` (from the renderer's ``moving.txt``), or None
-    when the frame does not come from a synthetic sequence with that file."""
-    root = _sequence_root(frame)
-    if root is None or frame.instance_mask is None or not (root / "moving.txt").is_file():
-        return None
-    if root not in _MOVING_CACHE:
-        from ..datasets.synthetic import read_moving
-
-        _MOVING_CACHE[root] = read_moving(root)
-    table = _MOVING_CACHE[root]
-    return _lookup_moving(table, frame)
-
-
-def _lookup_moving(table: dict[float, set[int]], frame) -> set[int]:
-    """The moving ids of one frame from ``read_moving``'s result (colour timestamp -> ids): the
-    entry nearest the frame's timestamp."""
-    if not table:
-        return set()
-    keys = np.fromiter(table.keys(), dtype=np.float64, count=len(table))
-    j = int(np.argmin(np.abs(keys - float(frame.timestamp))))
-    return set(table[float(keys[j])])
-
-
-def moving_mask(frame) -> np.ndarray | None:
-    """``(H, W)`` bool pixels of the instances moving in ``frame``; None without instance masks.
-
-    Without ``moving.txt`` (a synthetic sequence written by an older renderer, or a frame built
-    by hand) every instance of an a-priori dynamic class counts as moving.
-    """
-    if frame.instance_mask is None:
-        return None
-    ids = moving_ids(frame)
-    if ids is None:
-        from ..detection.coco import APRIORI_DYNAMIC
-
-        ids = {i for i, c in frame.instance_classes.items() if c in APRIORI_DYNAMIC}
-    return np.isin(frame.instance_mask, np.array(sorted(ids), dtype=np.int64))
-
-
-def truth_dynamic(frame, uv: np.ndarray) -> np.ndarray | None:
-    """``(N,)`` bool truth of the keypoints ``uv`` (see the module docstring), or None."""
-    mask = moving_mask(frame)
-    if mask is None:
-        return None
-    return values_at(mask, check_uv(uv), outside=False).astype(bool)
-
-
 @dataclass
 class ScoringScreener:
     """Wraps a screener and scores every table it returns against the synthetic truth.
@@ -147,8 +91,6 @@ class ScoringScreener:
             self.inner.reset()
 
     def screen(self, frame, uv, detections=None):
-        from .table import KeypointTable, depth_at
-
         if self.inner is None:
             table = KeypointTable.blank(uv, depth_at(frame.depth, uv))
         else:

@@ -1,0 +1,79 @@
+"""Perfect screening from the synthetic truth, and the truth lookups the scores use.
+
+The synthetic renderer (``dynslam_lab.datasets.synthetic``) writes an instance-id image per
+frame and the instances that truly move in each frame (``moving.txt``; the loader puts them on
+``Frame.moving_ids``). A keypoint is **truly dynamic** when its pixel (nearest integer position)
+lies on an instance that moves in that frame. A sitting person counts as dynamic only in the
+frames where the renderer moves them; instances that never move (chairs, monitors) are static.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..detection.coco import APRIORI_DYNAMIC
+from .config import ScreeningConfig
+from .table import KeypointTable, check_uv, depth_at, values_at
+
+__all__ = ["moving_mask", "truth_dynamic", "OracleScreener"]
+
+
+def moving_mask(frame) -> np.ndarray | None:
+    """``(H, W)`` bool pixels of the instances moving in ``frame``; None without instance masks.
+
+    Without ``Frame.moving_ids`` (a sequence written by an older renderer, or a frame built by
+    hand) every instance of an a-priori dynamic class counts as moving.
+    """
+    if frame.instance_mask is None:
+        return None
+    ids = frame.moving_ids
+    if ids is None:
+        ids = {i for i, c in frame.instance_classes.items() if c in APRIORI_DYNAMIC}
+    return np.isin(frame.instance_mask, np.array(sorted(ids), dtype=np.int64))
+
+
+def truth_dynamic(frame, uv: np.ndarray) -> np.ndarray | None:
+    """``(N,)`` bool truth of the keypoints ``uv`` (see the module docstring), or None."""
+    mask = moving_mask(frame)
+    if mask is None:
+        return None
+    return values_at(mask, check_uv(uv), outside=False).astype(bool)
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1000.0
+
+
+class OracleScreener:
+    """Perfect screening from the synthetic truth: a keypoint is dynamic when its pixel lies on an
+    instance that moves in this frame (see :func:`truth_dynamic`)."""
+
+    stages = ("oracle",)
+    name = "oracle"
+
+    def __init__(self, config: ScreeningConfig | None = None):
+        self.config = config or ScreeningConfig()
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def screen(self, frame, uv: np.ndarray, detections=None) -> KeypointTable:
+        uv = check_uv(uv)
+        t0 = time.perf_counter()
+        mask = moving_mask(frame)
+        if mask is None:
+            raise ValueError(
+                f"oracle screening needs a synthetic sequence with instance masks; frame {frame.index} "
+                f"({frame.rgb_path}) has none"
+            )
+        dyn = values_at(mask, uv, outside=False).astype(bool)
+        inst = values_at(frame.instance_mask, uv, outside=0).astype(np.int64)
+        n = len(uv)
+        reason = np.where(dyn, "oracle", "").astype(object)
+        return KeypointTable(
+            uv=uv, depth=depth_at(frame.depth, uv), class_id=np.full(n, -1), instance=np.where(inst > 0, inst, -1),
+            motion_prob=np.zeros(n), dynamic=dyn, reason=reason, stages={"oracle": dyn.copy()},
+            region_mask=mask, timings_ms={"total": _ms(t0)},
+        )
