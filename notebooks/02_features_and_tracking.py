@@ -37,7 +37,7 @@ from dynslam_lab.features.matching import hamming_distance, match_descriptors, o
 from dynslam_lab.features.orb import OrbConfig, extract_features, level_quotas
 from dynslam_lab.geometry.se3 import se3_inv, transform_points
 from dynslam_lab.slam.system import System
-from dynslam_lab.slam.tracking import pnp_ransac
+from dynslam_lab.geometry.pnp import pnp_ransac
 
 seq = TumSequence(synthetic_sequence("walking_xyz", n_frames=30, seed=0))
 f0, f1 = seq[0], seq[12]
@@ -141,7 +141,7 @@ a, b = i0[matches.idx_a], i1[matches.idx_b]
 z0 = f0.depth[np.round(feats0.uv[a, 1]).astype(int), np.round(feats0.uv[a, 0]).astype(int)]
 ok = z0 > 0
 X0 = seq.camera.backproject(feats0.uv[a][ok].astype(float), z0[ok])
-T_c1_c0, inl = pnp_ransac(X0, feats1.uv[b][ok], seq.camera, reproj_px=4.0, iterations=200, seed=0)
+T_c1_c0, inl = pnp_ransac(X0, feats1.uv[b][ok], seq.camera.K, reproj_px=4.0, iterations=200, seed=0)
 T_true = se3_inv(f1.T_w_c_gt) @ f0.T_w_c_gt
 print(f"{len(X0)} 3D-2D matches, {inl.sum()} inliers")
 print("translation error (m):", np.linalg.norm(T_c1_c0[:3, 3] - T_true[:3, 3]).round(4))

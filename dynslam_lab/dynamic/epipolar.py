@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..geometry.epipolar import epipolar_distance
 from .table import check_uv
 
 __all__ = [
@@ -40,7 +41,6 @@ __all__ = [
     "EpipolarResult",
     "track_lk",
     "estimate_fundamental",
-    "epipolar_distance",
     "epipolar_check",
     "pair_inputs",
 ]
@@ -160,22 +160,6 @@ def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tu
     if wrong:
         raise ValueError(f"{where}: per-keypoint inputs must have the same length as uv ({n}), got {', '.join(wrong)}")
     return (uv, *arrays.values())
-
-
-def epipolar_distance(F: np.ndarray, p_prev: np.ndarray, p_cur: np.ndarray) -> np.ndarray:
-    """Eqs. 16-17: distance (px) of ``p_cur (N, 2)`` to the epipolar line ``F p_prev``."""
-    F = np.asarray(F, np.float64)
-    if F.shape != (3, 3):
-        raise ValueError(f"epipolar_distance: F must be (3, 3), got {F.shape}")
-    p1 = check_uv(p_prev, "p_prev")
-    p2 = check_uv(p_cur, "p_cur")
-    if len(p1) != len(p2):
-        raise ValueError(f"epipolar_distance: {len(p1)} previous and {len(p2)} current pixels")
-    h1 = np.column_stack([p1, np.ones(len(p1))])
-    h2 = np.column_stack([p2, np.ones(len(p2))])
-    lines = h1 @ F.T  # (N, 3): l2 = F p1 for every row
-    num = np.abs(np.sum(h2 * lines, axis=1))
-    return num / np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2)
 
 
 def estimate_fundamental(p_prev: np.ndarray, p_cur: np.ndarray, config: EpipolarConfig = EpipolarConfig()):

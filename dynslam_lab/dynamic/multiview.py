@@ -23,10 +23,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from ..geometry.se3 import make_pose, transform_points
+from ..geometry.pnp import pnp_ransac
+from ..geometry.se3 import transform_points
 from .epipolar import pair_inputs
 from .table import check_uv
 
@@ -98,19 +98,11 @@ def rough_pose(points_prev: np.ndarray, uv: np.ndarray, K: np.ndarray, config: M
         raise ValueError(f"rough_pose: points_prev must be (M, 3) matching uv (M, 2), got {P.shape} and {uv.shape}")
     if len(P) < config.min_pairs:
         return None, None
-    cv2.setRNGSeed(config.seed)
-    ok, rvec, tvec, idx = cv2.solvePnPRansac(
-        P, uv, np.asarray(K, np.float64), None, iterationsCount=config.pnp_iterations,
-        reprojectionError=config.pnp_reprojection_px, confidence=config.pnp_confidence, flags=cv2.SOLVEPNP_EPNP,
-    )
-    if not ok or idx is None or len(idx) < config.min_inliers:
+    T, inl = pnp_ransac(P, uv, K, config.pnp_reprojection_px, config.pnp_iterations, config.pnp_confidence,
+                        seed=config.seed, min_inliers=config.min_inliers, refine=True)
+    if T is None:
         return None, None
-    inl = np.zeros(len(P), bool)
-    inl[idx.reshape(-1)] = True
-    # refine on the inliers (Levenberg-Marquardt from the RANSAC estimate)
-    rvec, tvec = cv2.solvePnPRefineLM(P[inl], uv[inl], np.asarray(K, np.float64), None, rvec, tvec)
-    R, _ = cv2.Rodrigues(rvec)
-    return make_pose(R, tvec.reshape(3)), inl
+    return T, inl
 
 
 def multiview_check(

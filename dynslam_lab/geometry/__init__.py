@@ -1,4 +1,6 @@
-"""Rigid-body geometry: SE(3) helpers, quaternions, alignment."""
+"""Geometry shared by every stage: SE(3) poses and quaternions (:mod:`.se3`), point-set
+alignment and 3D RANSAC (:mod:`.align`), PnP-RANSAC (:mod:`.pnp`) and the epipolar distance
+(:mod:`.epipolar`)."""
 from .se3 import (
     make_pose,
     se3_inv,
@@ -11,6 +13,7 @@ from .se3 import (
     so3_exp,
     so3_log,
     rotation_angle_deg,
+    nearest_rotation,
 )
 
 __all__ = [
@@ -25,4 +28,5 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "rotation_angle_deg",
+    "nearest_rotation",
 ]

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .se3 import quat_xyzw_to_matrix
+from .se3 import make_pose, quat_xyzw_to_matrix, transform_points
 
-__all__ = ["Alignment", "AlignmentError", "umeyama_alignment", "horn_alignment"]
+__all__ = ["Alignment", "AlignmentError", "umeyama_alignment", "horn_alignment", "rigid_alignment_batch", "ransac_rigid_3d"]
 
 
 class AlignmentError(ValueError):
@@ -200,3 +200,90 @@ def horn_alignment(x: np.ndarray, y: np.ndarray, with_scale: bool = False) -> Al
         c = 1.0
     t = mu_y - c * R @ mu_x
     return Alignment(R, t, c)
+
+
+def rigid_alignment_batch(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigid transforms (no scale) of many small point sets at once: Umeyama's eqs. 38-41
+    with ``c = 1``, one SVD per set (the Kabsch solution).
+
+    Parameters
+    ----------
+    x, y : ``(B, K, 3)`` corresponding points, ``K >= 3`` per set.
+
+    Returns
+    -------
+    R : ``(B, 3, 3)`` rotations and t : ``(B, 3)`` translations with ``y ~ R x + t``;
+    ok : ``(B,)`` bool, the set is not degenerate (its cross-covariance has rank >= 2, i.e. the
+    points are not collinear).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] != 3 or x.shape != y.shape or x.shape[1] < 3:
+        raise AlignmentError(f"rigid_alignment_batch: x and y must both be (B, K>=3, 3), got {x.shape} and {y.shape}")
+    mx, my = x.mean(axis=1), y.mean(axis=1)
+    cov = np.einsum("ikx,iky->ixy", y - my[:, None], x - mx[:, None])  # Sigma_xy per set (eq. 38)
+    U, d, Vt = np.linalg.svd(cov)
+    ok = d[:, 1] > 1e-9 * np.maximum(d[:, 0], 1e-12)
+    S = np.ones((len(x), 3))
+    S[:, 2] = np.where(np.linalg.det(U) * np.linalg.det(Vt) < 0, -1.0, 1.0)  # eq. 39/43
+    R = U @ (S[:, :, None] * Vt)  # eq. 40
+    t = my - np.einsum("ixy,iy->ix", R, mx)  # eq. 41
+    return R, t, ok
+
+
+def ransac_rigid_3d(
+    X_src: np.ndarray,
+    X_dst: np.ndarray,
+    tolerance: np.ndarray | float,
+    n_iterations: int = 300,
+    rng: np.random.Generator | int | None = 0,
+    refine_rounds: int = 2,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform ``T (4, 4)`` with ``X_dst ~ R X_src + t`` by RANSAC over 3-point samples.
+
+    All ``n_iterations`` minimal samples are solved at once (:func:`rigid_alignment_batch`) and scored on all pairs at once; the best hypothesis
+    (most inliers) is refined by :func:`umeyama_alignment` on its inliers, ``refine_rounds`` times.
+
+    Parameters
+    ----------
+    X_src, X_dst : ``(N, 3)`` corresponding points (metres).
+    tolerance : scalar or ``(N,)`` inlier distance (metres).
+    n_iterations : number of minimal samples.
+    rng : Generator or seed.
+    refine_rounds : re-estimations on the inlier set.
+
+    Returns
+    -------
+    (T (4, 4), inliers (N,) bool). With fewer than 3 pairs or only degenerate samples, the identity
+    and no inliers.
+    """
+    P = np.asarray(X_src, dtype=np.float64).reshape(-1, 3)
+    Q = np.asarray(X_dst, dtype=np.float64).reshape(-1, 3)
+    if len(P) != len(Q):
+        raise ValueError(f"ransac_rigid_3d: {len(P)} source and {len(Q)} target points")
+    n = len(P)
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (n,))
+    none = (np.eye(4), np.zeros(n, bool))
+    if n < 3:
+        return none
+    rng = np.random.default_rng(rng)
+    samples = np.argpartition(rng.random((n_iterations, n)), 2, axis=1)[:, :3]  # 3 distinct per row
+    R, t, ok = rigid_alignment_batch(P[samples], Q[samples])
+    err = np.linalg.norm(np.einsum("ixy,ny->inx", R, P) + t[:, None, :] - Q[None], axis=2)  # (I, N)
+    counts = np.where(ok, (err < tol).sum(axis=1), -1)
+    best = int(np.argmax(counts))
+    if counts[best] < 3:
+        return none
+    T = make_pose(R[best], t[best])
+    inl = err[best] < tol
+    for _ in range(refine_rounds):
+        try:
+            a = umeyama_alignment(P[inl], Q[inl])
+        except AlignmentError:
+            break
+        T_new = make_pose(a.R, a.t)
+        inl_new = np.linalg.norm(transform_points(T_new, P) - Q, axis=1) < tol
+        if inl_new.sum() < inl.sum():
+            break
+        T, inl = T_new, inl_new
+    return T, inl

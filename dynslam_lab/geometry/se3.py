@@ -24,6 +24,7 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "rotation_angle_deg",
+    "nearest_rotation",
 ]
 
 
@@ -162,3 +163,11 @@ def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=np.float64)
     c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation closest to ``R (3, 3)`` in the Frobenius norm (SVD, with ``det = +1``), so that
+    products of poses cannot drift away from SO(3)."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, float))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt

@@ -51,7 +51,7 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..features.matching import TH_LOW, hamming_pairs, match_descriptors
-from ..geometry.align import AlignmentError, umeyama_alignment
+from ..geometry.align import AlignmentError, ransac_rigid_3d, umeyama_alignment
 from ..geometry.se3 import make_pose, se3_inv, transform_points
 from .keyframe_database import CandidateQueryConfig, KeyframeDatabase, LoopCandidate, static_bow
 from .pose_graph import PoseGraphConfig, correct_points, optimize_pose_graph
@@ -62,7 +62,6 @@ __all__ = [
     "LoopVerification",
     "LoopResult",
     "LoopCloser",
-    "ransac_rigid_3d",
     "verify_loop",
     "match_points_3d",
     "refine_loop_pose",
@@ -117,75 +116,6 @@ class LoopClosingConfig:
             raise ValueError("LoopClosingConfig.min_keyframes_between and loop_group_size must be >= 0")
         if self.loop_edge_weight <= 0:
             raise ValueError(f"LoopClosingConfig.loop_edge_weight must be > 0, got {self.loop_edge_weight}")
-
-
-# --------------------------------------------------------------------------- RANSAC
-def ransac_rigid_3d(
-    X_src: np.ndarray,
-    X_dst: np.ndarray,
-    tolerance: np.ndarray | float,
-    n_iterations: int = 300,
-    rng: np.random.Generator | int | None = 0,
-    refine_rounds: int = 2,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid transform ``T (4, 4)`` with ``X_dst ~ R X_src + t`` by RANSAC over 3-point samples.
-
-    All ``n_iterations`` minimal samples are solved at once (batched Kabsch/Umeyama SVD, the
-    reflection fixed by ``diag(1, 1, det)``) and scored on all pairs at once; the best hypothesis
-    (most inliers) is refined by :func:`umeyama_alignment` on its inliers, ``refine_rounds`` times.
-
-    Parameters
-    ----------
-    X_src, X_dst : ``(N, 3)`` corresponding points (metres).
-    tolerance : scalar or ``(N,)`` inlier distance (metres).
-    n_iterations : number of minimal samples.
-    rng : Generator or seed.
-    refine_rounds : re-estimations on the inlier set.
-
-    Returns
-    -------
-    (T (4, 4), inliers (N,) bool). With fewer than 3 pairs or only degenerate samples, the identity
-    and no inliers.
-    """
-    P = np.asarray(X_src, dtype=np.float64).reshape(-1, 3)
-    Q = np.asarray(X_dst, dtype=np.float64).reshape(-1, 3)
-    if len(P) != len(Q):
-        raise ValueError(f"ransac_rigid_3d: {len(P)} source and {len(Q)} target points")
-    n = len(P)
-    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (n,))
-    none = (np.eye(4), np.zeros(n, bool))
-    if n < 3:
-        return none
-    rng = np.random.default_rng(rng)
-    samples = np.argpartition(rng.random((n_iterations, n)), 2, axis=1)[:, :3]  # 3 distinct per row
-    Ps, Qs = P[samples], Q[samples]  # (I, 3, 3): sample, point, xyz
-    mp, mq = Ps.mean(axis=1), Qs.mean(axis=1)
-    cov = np.einsum("ikx,iky->ixy", Qs - mq[:, None], Ps - mp[:, None])  # Sigma_qp (I, 3, 3)
-    U, d, Vt = np.linalg.svd(cov)
-    ok = d[:, 1] > 1e-9 * np.maximum(d[:, 0], 1e-12)  # rank >= 2: not collinear
-    sgn = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    S = np.ones((n_iterations, 3))
-    S[:, 2] = np.where(sgn < 0, -1.0, 1.0)
-    R = U @ (S[:, :, None] * Vt)
-    t = mq - np.einsum("ixy,iy->ix", R, mp)
-    err = np.linalg.norm(np.einsum("ixy,ny->inx", R, P) + t[:, None, :] - Q[None], axis=2)  # (I, N)
-    counts = np.where(ok, (err < tol).sum(axis=1), -1)
-    best = int(np.argmax(counts))
-    if counts[best] < 3:
-        return none
-    T = make_pose(R[best], t[best])
-    inl = err[best] < tol
-    for _ in range(refine_rounds):
-        try:
-            a = umeyama_alignment(P[inl], Q[inl])
-        except AlignmentError:
-            break
-        T_new = make_pose(a.R, a.t)
-        inl_new = np.linalg.norm(transform_points(T_new, P) - Q, axis=1) < tol
-        if inl_new.sum() < inl.sum():
-            break
-        T, inl = T_new, inl_new
-    return T, inl
 
 
 @dataclass(frozen=True)

@@ -37,14 +37,13 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import so3_exp
+from ..geometry.se3 import nearest_rotation, so3_exp
 
 __all__ = [
     "CHI2_2DOF",
     "CHI2_3DOF",
     "Observations",
     "project_stereo",
-    "nearest_rotation",
     "observation_chi2",
     "optimize_pose",
     "local_bundle_adjustment",
@@ -101,14 +100,6 @@ def _left_jacobian(omega: np.ndarray) -> np.ndarray:
     a = np.where(small, 0.5, (1 - np.cos(ths)) / ths**2)
     b = np.where(small, 1.0 / 6.0, (ths - np.sin(ths)) / ths**3)
     return np.eye(3) + a * W + b * (W @ W)
-
-
-def nearest_rotation(R: np.ndarray) -> np.ndarray:
-    """The rotation closest to ``R (3, 3)`` in the Frobenius norm (SVD), so that products of poses
-    cannot drift away from SO(3)."""
-    U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def project_stereo(X_c: np.ndarray, camera: PinholeCamera, bf: float) -> np.ndarray:

@@ -40,18 +40,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, match_descriptors, orientation_consistent, search_by_projection
-from ..geometry.se3 import se3_inv, transform_points
+from ..geometry.pnp import pnp_ransac
+from ..geometry.se3 import nearest_rotation, se3_inv, transform_points
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
-from .optimize import Observations, nearest_rotation, optimize_pose
+from .optimize import Observations, optimize_pose
 
-__all__ = ["TrackingConfig", "Tracker", "TrackState", "pnp_ransac", "frustum_candidates"]
+__all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates"]
 
 
 @dataclass(frozen=True)
@@ -98,32 +98,6 @@ class TrackState:
     OK = "ok"
     RELOCALIZED = "relocalized"
     LOST = "lost"
-
-
-def pnp_ransac(
-    X_w: np.ndarray, uv: np.ndarray, camera: PinholeCamera, reproj_px: float, iterations: int, seed: int = 0
-) -> tuple[np.ndarray | None, np.ndarray]:
-    """Pose from 3D-2D matches with ``cv2.solvePnPRansac`` (EPnP minimal sets).
-
-    Returns ``(T_c_w (4, 4) or None, inlier (K,) bool)``.
-    """
-    X_w = np.asarray(X_w, np.float64).reshape(-1, 3)
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    inl = np.zeros(len(X_w), bool)
-    if len(X_w) < 6:
-        return None, inl
-    cv2.setRNGSeed(int(seed))
-    ok, rvec, tvec, idx = cv2.solvePnPRansac(
-        X_w, uv, camera.K, None, iterationsCount=int(iterations), reprojectionError=float(reproj_px),
-        confidence=0.99, flags=cv2.SOLVEPNP_EPNP,
-    )
-    if not ok or idx is None:
-        return None, inl
-    inl[idx.ravel()] = True
-    R, _ = cv2.Rodrigues(rvec)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, tvec.ravel()
-    return T, inl
 
 
 def frustum_candidates(
@@ -251,7 +225,8 @@ class Tracker:
             return False
         pids = kf.map_point_ids[kidx[m.idx_a]]
         fi = fidx[m.idx_b]
-        T, inl = pnp_ransac(self.map.xyz[pids], frame.uv[fi], self.camera, self.cfg.pnp_reproj_px, self.cfg.pnp_iterations, seed=frame.index)
+        T, inl = pnp_ransac(self.map.xyz[pids], frame.uv[fi], self.camera.K, self.cfg.pnp_reproj_px, self.cfg.pnp_iterations,
+                            seed=frame.index)
         if T is None or inl.sum() < self.cfg.pnp_min_inliers:
             return False
         frame.map_point_ids[:] = -1

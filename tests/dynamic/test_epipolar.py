@@ -10,11 +10,11 @@ from dynslam_lab.dynamic.epipolar import (
     EpipolarConfig,
     LkConfig,
     epipolar_check,
-    epipolar_distance,
     estimate_fundamental,
     track_lk,
 )
 from dynslam_lab.geometry.se3 import make_pose, so3_exp, transform_points
+from dynslam_lab.geometry.epipolar import epipolar_distance
 from tests.dynamic.scenes import CAM, two_layer_frames
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dynslam_lab.geometry.align import ransac_rigid_3d
 from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, so3_log, transform_points
 from dynslam_lab.slam.frame import KeyFrame
 from dynslam_lab.camera import PinholeCamera
@@ -15,7 +16,6 @@ from dynslam_lab.slam.loop_closing import (
     consistent_candidates,
     intrinsics_from_keyframe,
     match_points_3d,
-    ransac_rigid_3d,
     refine_loop_pose,
     verify_loop,
 )

@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from dynslam_lab.camera import CAMERA_PRESETS
-from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp, transform_points
+from dynslam_lab.geometry.se3 import make_pose, nearest_rotation, se3_inv, so3_exp, transform_points
 from dynslam_lab.slam.optimize import (
     Observations,
     local_bundle_adjustment,
-    nearest_rotation,
     observation_chi2,
     optimize_pose,
 )

@@ -15,7 +15,8 @@ from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp, transform_poin
 from dynslam_lab.slam.frame import KeyFrame, keypoint_depths, make_slam_frame
 from dynslam_lab.slam.map import Map
 from dynslam_lab.slam.system import System
-from dynslam_lab.slam.tracking import TrackState, frustum_candidates, pnp_ransac
+from dynslam_lab.geometry.pnp import pnp_ransac
+from dynslam_lab.slam.tracking import TrackState, frustum_candidates
 from tests.conftest import shared_file
 from tests.slam import scene
 
@@ -30,11 +31,11 @@ def test_pnp_ransac_recovers_pose_with_outliers():
     uv += rng.normal(0, 0.5, uv.shape)
     bad = rng.random(200) < 0.3
     uv[bad] = rng.uniform(0, 480, (bad.sum(), 2))
-    T_est, inl = pnp_ransac(X, uv, CAM, 3.0, 200, seed=1)
+    T_est, inl = pnp_ransac(X, uv, CAM.K, 3.0, 200, seed=1)
     assert T_est is not None
     assert np.abs(T_est[:3, 3] - T[:3, 3]).max() < 0.02
     assert inl[~bad].mean() > 0.9 and inl[bad].mean() < 0.05
-    assert pnp_ransac(X[:4], uv[:4], CAM, 3.0, 10)[0] is None
+    assert pnp_ransac(X[:4], uv[:4], CAM.K, 3.0, 10)[0] is None
 
 
 def test_frustum_candidates_filters_by_image_distance_and_angle():
