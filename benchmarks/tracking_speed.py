@@ -28,8 +28,8 @@ def main() -> None:
 
     from dynslam_lab.config import Config
     from dynslam_lab.datasets.tum import TumSequence
-    from dynslam_lab.slam.runner import blas_single_thread
-    from dynslam_lab.slam.system import System
+    from dynslam_lab.pipeline import build_pipeline
+    from dynslam_lab.threads import blas_single_thread
 
     if args.seq:
         seq = TumSequence(args.seq, max_frames=args.frames)
@@ -40,7 +40,7 @@ def main() -> None:
     frames = [seq[i] for i in range(min(args.frames, len(seq)))]
     for f in frames:
         _ = f.gray  # colour conversion is the dataset's, not the tracker's
-    system = System(seq.camera, Config())
+    system = build_pipeline(Config(), seq.camera, loop_closing=False)
     rows = []
     t0 = time.perf_counter()
     with blas_single_thread():

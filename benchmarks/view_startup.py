@@ -1,7 +1,7 @@
 """Start-up time of ``dynslam view`` for a large run (target: first picture within 3 s for
 1,000 keyframes).
 
-Writes a demo run folder (``dynslam_lab.viz.demo_run``) with K keyframes, then measures
+Writes a demo run folder (``tests/fixtures/demo_run.py``; run from the repository root) with K keyframes, then measures
 
 1. in process: ``load_run`` (read every file) and ``build_scene`` (send every layer);
 2. the command: from launching ``dynslam view`` to its "open http://..." line (Python start,
@@ -27,6 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+# the demo run and the Chromium driver are test fixtures (tests/fixtures/), not part of the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -38,7 +41,7 @@ def main() -> int:
     ap.add_argument("--keep", action="store_true", help="keep the run folder and screenshot")
     args = ap.parse_args()
 
-    from dynslam_lab.viz.demo_run import write_demo_run
+    from tests.fixtures.demo_run import write_demo_run
     from dynslam_lab.viz.viser_scene import COLORS, SceneConfig, build_scene, free_port, load_run
 
     import viser
@@ -68,7 +71,7 @@ def main() -> int:
         print(f"| start viser server | {r[1]:.3f} |")
         print(f"| build_scene (send all layers) | {r[2]:.3f} |")
 
-        from dynslam_lab.viz.browser import HeadlessChromium, colour_pixels, find_chromium, outside_overlays
+        from tests.fixtures.browser import HeadlessChromium, colour_pixels, find_chromium, outside_overlays
 
         browser = HeadlessChromium(1000, 700) if find_chromium() else None  # its own start-up is not the viewer's
         try:

@@ -25,6 +25,7 @@ Sources
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 __all__ = ["Entry", "BASE_URLS", "CATALOG", "url_for", "get_entry", "CatalogError"]
@@ -172,8 +173,6 @@ def get_entry(name: str) -> Entry:
     """The entry called ``name``; a clear error suggesting close names otherwise."""
     if name in CATALOG:
         return CATALOG[name]
-    import difflib
-
     close = difflib.get_close_matches(name, CATALOG, n=5, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see `python -m data_fetch list`"
     raise CatalogError(f"{name!r} is not in the catalog{hint}")

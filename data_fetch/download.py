@@ -32,6 +32,8 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+from tqdm import tqdm
+
 __all__ = ["DownloadError", "ChecksumError", "DownloadResult", "download", "sha256_file"]
 
 CHUNK = 1 << 16  # bytes read per iteration
@@ -259,8 +261,6 @@ def download(
 
         bar = None
         if progress:
-            from tqdm import tqdm
-
             bar = tqdm(total=total, initial=have, unit="B", unit_scale=True, unit_divisor=1024,
                        desc=dest.name, leave=True)
         written = have

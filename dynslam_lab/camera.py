@@ -22,10 +22,12 @@ Palazzolo et al., "ReFusion", IROS 2019 (Bonn RGB-D Dynamic dataset intrinsics).
 
 from __future__ import annotations
 
+import json
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 __all__ = ["PinholeCamera", "CAMERA_PRESETS", "camera_for_sequence"]
@@ -149,8 +151,6 @@ class PinholeCamera:
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         if not self.has_distortion or len(uv) == 0:
             return uv.copy()
-        import cv2
-
         und = cv2.undistortPoints(uv.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K)
         return und.reshape(-1, 2)
 
@@ -206,8 +206,6 @@ def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None =
 
 def load_camera_json(path: str | Path) -> PinholeCamera:
     """Read a camera from a JSON file with the fields of :class:`PinholeCamera`."""
-    import json
-
     path = Path(path)
     try:
         data = json.loads(path.read_text())
@@ -227,9 +225,6 @@ def load_camera_json(path: str | Path) -> PinholeCamera:
 
 def save_camera_json(camera: PinholeCamera, path: str | Path) -> None:
     """Write a camera as JSON (read back by :func:`load_camera_json`)."""
-    import json
-    from dataclasses import asdict
-
     d = asdict(camera)
     d["dist"] = list(camera.dist)
     Path(path).write_text(json.dumps(d, indent=2) + "\n")

@@ -18,10 +18,38 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["with_overrides", "load_config", "config_to_dict"]
+from .detection.config import DetectionConfig
+from .dynamic.config import ScreeningConfig
+from .features.orb import OrbConfig
+from .mapping.dense import DenseMapConfig
+from .slam.local_mapping import LocalMappingConfig
+from .slam.loop_closing import LoopClosingConfig
+from .slam.tracking import TrackingConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Config", "with_overrides", "load_config", "config_to_dict"]
+
+
+@dataclass(frozen=True)
+class Config:
+    """Root of the parameter tree: one section per stage (TOML ``[orb]``, ``[tracking]``,
+    ``[local_mapping]``, ``[detection]``, ``[screening.*]``, ``[loop_closing]``, ``[dense_map]``)."""
+
+    orb: OrbConfig = field(default_factory=OrbConfig)  # ORB extraction (features/orb.py)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)  # tracking (slam/tracking.py)
+    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)  # local mapping (slam/local_mapping.py)
+    detection: DetectionConfig = field(default_factory=DetectionConfig)  # detectors, NMS, motion priors (detection/config.py)
+    screening: ScreeningConfig = field(default_factory=ScreeningConfig)  # dynamic-feature screening (dynamic/config.py)
+    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)  # loop closing (slam/loop_closing.py)
+    dense_map: DenseMapConfig = field(default_factory=DenseMapConfig)  # dense static map (mapping/dense.py)
 
 
 def with_overrides(cfg: Any, overrides: dict[str, Any], where: str = "config") -> Any:
@@ -79,10 +107,6 @@ def _coerce(current: Any, value: Any, dotted: str) -> Any:
 
 def load_config(path: str | Path, base: Any) -> Any:
     """Read a TOML file and apply it on top of ``base`` (clear error naming the file)."""
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover - Python 3.10
-        import tomli as tomllib  # type: ignore[no-redef]
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: config file not found")
@@ -99,34 +123,3 @@ def load_config(path: str | Path, base: Any) -> Any:
 def config_to_dict(cfg: Any) -> dict[str, Any]:
     """A plain dict of a config tree (for ``summary.json`` and notebooks)."""
     return dataclasses.asdict(cfg)
-
-
-# --------------------------------------------------------------------------- the root tree
-# Stage parameter classes live beside their algorithms; imported here to gather them.
-from dataclasses import dataclass, field  # noqa: E402
-
-from .features.orb import OrbConfig  # noqa: E402
-from .slam.local_mapping import LocalMappingConfig  # noqa: E402
-from .slam.tracking import TrackingConfig  # noqa: E402
-from .detection.config import DetectionConfig  # noqa: E402
-from .dynamic.config import ScreeningConfig  # noqa: E402
-from .slam.loop_closing import LoopClosingConfig  # noqa: E402
-from .mapping.dense import DenseMapConfig  # noqa: E402
-
-__all__ += ["Config"]
-
-
-@dataclass(frozen=True)
-class Config:
-    """Root of the parameter tree (TOML sections ``[orb]``, ``[tracking]``, ``[local_mapping]``).
-
-    Sections for detection, screening, loop closing and the dense map are added beside these.
-    """
-
-    orb: OrbConfig = field(default_factory=OrbConfig)  # ORB extraction (features/orb.py)
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)  # tracking (slam/tracking.py)
-    local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)  # local mapping (slam/local_mapping.py)
-    detection: DetectionConfig = field(default_factory=DetectionConfig)  # detectors, NMS, motion priors (detection/config.py)
-    screening: ScreeningConfig = field(default_factory=ScreeningConfig)  # dynamic-feature screening (dynamic/config.py)
-    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)  # loop closing (slam/loop_closing.py)
-    dense_map: DenseMapConfig = field(default_factory=DenseMapConfig)  # dense static map (mapping/dense.py)

@@ -54,15 +54,14 @@ plt.show()
 
 # %%
 from dynslam_lab.config import Config
-from dynslam_lab.dynamic.screening import build_screener
-from dynslam_lab.slam.runner import run_sequence
+from dynslam_lab.pipeline import build_pipeline
+from dynslam_lab.runs import run_sequence
 
 out_root = Path(tempfile.mkdtemp(prefix="dynslam_quickstart_"))
 summaries = {}
 for filters in ("none", "oracle"):
-    summaries[filters] = run_sequence(
-        seq, out_root / filters, Config(), screener=build_screener(filters), progress=False
-    )
+    system = build_pipeline(Config(), seq.camera, filters=filters)
+    summaries[filters] = run_sequence(seq, out_root / filters, system, progress=False)
     print(filters, "tracked", summaries[filters]["tracked"], "of", summaries[filters]["frames"])
 
 # %% [markdown]

@@ -16,12 +16,12 @@
 #
 # Semantics says what *may* move; geometry says what *did* move between two frames.
 #
-# 1. **Epipolar check** (seeds 002, 003, 004): LK matches with the previous frame, RANSAC fundamental
+# 1. **Epipolar check** (Zhang et al. 2023, Chang et al. 2021 and Ge et al. 2024): LK matches with the previous frame, RANSAC fundamental
 #    matrix from the pairs outside people and away from the border, then the distance of each keypoint to
-#    its epipolar line, $d = |p_2^\top F p_1| / \sqrt{a^2+b^2}$ (seed 002 eq. 17).
-# 2. **Multi-view RGB-D check** (seed 003 eq. 2): a rough PnP pose from the pairs outside people, then
+#    its epipolar line, $d = |p_2^\top F p_1| / \sqrt{a^2+b^2}$ (Zhang et al. 2023 eq. 17).
+# 2. **Multi-view RGB-D check** (Chang et al. 2021 eq. 2): a rough PnP pose from the pairs outside people, then
 #    reprojection error > 4 px or depth difference > 0.1 m → dynamic.
-# 3. **Adaptive dense flow** (seed 003 eq. 3): Farneback flow, threshold $2\bar p$ with $\bar p$ the mean flow
+# 3. **Adaptive dense flow** (Chang et al. 2021 eq. 3): Farneback flow, threshold $2\bar p$ with $\bar p$ the mean flow
 #    inside the person mask; regions above it touching the person are "human-driven".
 #
 # Frames come from the synthetic `walking_xyz` sequence (truth known).

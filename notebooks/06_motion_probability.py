@@ -12,12 +12,12 @@
 # ---
 
 # %% [markdown]
-# # 06 · Motion probabilities: giving features back (ASG-SLAM) and seed 002's levels
+# # 06 · Motion probabilities: giving features back (ASG-SLAM) and Zhang et al.'s levels
 #
 # Removing everything that *might* move can leave too little to track. ASG-SLAM (Ge et al. 2024, Sec. 2.4)
 # grades COCO classes into six categories of increasing motion probability and watches the static ratio
 # $\delta = m/n$ (eq. 3): while $\delta < \delta_1$, excluded keypoints come back, least probable movers
-# first. Seed 002 (Zhang et al. 2023) sorts objects into high / medium / low dynamic levels: high and
+# first. Zhang et al. 2023 (Zhang et al. 2023) sorts objects into high / medium / low dynamic levels: high and
 # medium are removed at once, low ones only when the epipolar test says they moved.
 #
 # Our readings (`docs/motion_probability.md`): restoration goes class group by group and never gives back
@@ -51,7 +51,7 @@ print("detections:", ", ".join(f"{COCO_CLASSES[c]} ({s:.2f})" for c, s in zip(de
 
 # %% [markdown]
 # ## Every keypoint's class and motion probability
-# Suppose we exclude every keypoint on *any* detected object (seed 002's levels with low objects removed
+# Suppose we exclude every keypoint on *any* detected object (Zhang et al.'s levels with low objects removed
 # too): how many are left?
 
 # %%
@@ -85,13 +85,13 @@ display(widgets.interactive(show_restoration, delta_1=widgets.FloatSlider(value=
                                                                           description="δ₁")))
 
 # %% [markdown]
-# ## Seed 002's rule in the pipeline
+# ## Zhang et al.'s rule in the pipeline
 # Semantic levels plus the epipolar and multi-view checks on the next frame: people (high) go at once;
 # low-level objects (monitor, keyboard) only when geometry flags them. Colours give the reason.
 
 # %%
-def show_rule(delta_1=0.3, use_seed002=True):
-    stages = ("semantic", "epipolar", "multiview") + (("seed002",) if use_seed002 else ()) + ("restoration",)
+def show_rule(delta_1=0.3, use_level_rule=True):
+    stages = ("semantic", "epipolar", "multiview") + (("level_rule",) if use_level_rule else ()) + ("restoration",)
     cfg = dataclasses.replace(ScreeningConfig(), restoration=RestorationConfig(delta_1=delta_1))
     s = Screener(stages, cfg)
     prev = seq[9]
@@ -103,4 +103,4 @@ def show_rule(delta_1=0.3, use_seed002=True):
 
 
 display(widgets.interactive(show_rule, delta_1=widgets.FloatSlider(value=0.3, min=0.0, max=1.0, step=0.05, description="δ₁"),
-                            use_seed002=widgets.Checkbox(value=True, description="seed 002 levels")))
+                            use_level_rule=widgets.Checkbox(value=True, description="Zhang et al. 2023 levels")))

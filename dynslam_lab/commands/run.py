@@ -36,22 +36,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _import(module: str, name: str, what: str):
-    import importlib
-
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as exc:
-        raise RuntimeError(f"{what} is not available ({module}.{name}: {exc})") from exc
-
-
 def run(args: argparse.Namespace) -> int:
     import json
     import logging
 
     from ..config import Config, load_config
     from ..datasets.tum import TumSequence
-    from ..slam.runner import run_sequence
+    from ..pipeline import build_pipeline
+    from ..runs import run_sequence
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     config = Config()
@@ -60,21 +52,9 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     seq = TumSequence(args.seqdir, camera=args.camera)
-    detector = None
-    if args.detector and args.detector != "none":
-        build_detector = _import("dynslam_lab.detection", "build_detector", "--detector")
-        detector = build_detector(args.detector, getattr(config, "detection", None))
-    screener = None
-    if args.filters and args.filters != "none":
-        build_screener = _import("dynslam_lab.dynamic.screening", "build_screener", "--filters")
-        screener = build_screener(args.filters, getattr(config, "screening", None))
-    loop_closer = None
-    loop_cfg = getattr(config, "loop_closing", None)
-    if not args.no_loop and (loop_cfg is None or getattr(loop_cfg, "enabled", True)):
-        LoopCloser = _import("dynslam_lab.slam.loop_closing", "LoopCloser", "loop closing (use --no-loop)")
-        loop_closer = LoopCloser(loop_cfg)
-    summary = run_sequence(seq, args.out, config, detector=detector, screener=screener, loop_closer=loop_closer,
-                           max_frames=args.max_frames, progress=not args.quiet, save_labels=args.save_labels)
+    system = build_pipeline(config, seq.camera, detector=args.detector, filters=args.filters, loop_closing=not args.no_loop)
+    summary = run_sequence(seq, args.out, system, max_frames=args.max_frames, progress=not args.quiet,
+                           save_labels=args.save_labels)
     short = {k: summary.get(k) for k in ("frames", "tracked", "lost", "keyframes", "map_points", "loops")}
     if summary.get("ate"):
         short["ate_rmse_m"] = summary["ate"].get("rmse")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
@@ -48,8 +49,6 @@ class Frame:
         """``(H, W)`` uint8 grey image (computed once, then cached)."""
         g = self.__dict__.get("_gray")
         if g is None:
-            import cv2
-
             g = cv2.cvtColor(self.rgb, cv2.COLOR_RGB2GRAY)
             self.__dict__["_gray"] = g
         return g

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera, camera_for_sequence
+from ..evaluation.trajectory import read_tum_trajectory
 from ..textfile import data_lines
 from .frame import Frame
 
@@ -241,8 +242,6 @@ class TumSequence:
         p = self.root / "groundtruth.txt"
         if not p.is_file():
             return None
-        from ..evaluation.trajectory import read_tum_trajectory
-
         return read_tum_trajectory(p)
 
     def _associate_gt(self) -> np.ndarray | None:

@@ -105,7 +105,7 @@ def build_detector(spec: str, config: DetectionConfig | None = None) -> Detector
             raise ValueError("detector spec 'cache:' needs a directory, e.g. cache:runs/dets")
         directory, _, inner = arg.partition("=")
         fallback = build_detector(inner, config) if inner else None
-        return CacheDetector(directory, fallback)
+        return CacheDetector(directory, fallback, config)
     if spec.lower().endswith(".onnx"):
         return OnnxDetector(spec, config)
     raise ValueError(f"unknown detector spec {spec!r}: expected none, oracle, onnx:PATH or cache:DIR")

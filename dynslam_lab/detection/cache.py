@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets.frame import Frame
+from .config import DetectionConfig
 from .detections import Detections
 
 __all__ = ["save_detections", "load_detections", "cache_key", "CacheDetector"]
@@ -82,11 +83,13 @@ class CacheDetector:
     directory : the cache folder.
     fallback : a detector run on a cache miss (its result is then saved); None makes a
         miss an error naming the missing file.
+    config : the detection parameters of the run (recorded with it; the fallback's when given).
     """
 
-    def __init__(self, directory: str | Path, fallback=None) -> None:
+    def __init__(self, directory: str | Path, fallback=None, config: DetectionConfig | None = None) -> None:
         self.directory = Path(directory)
         self.fallback = fallback
+        self.config = fallback.config if fallback is not None else (config or DetectionConfig())
         if fallback is None and not self.directory.is_dir():
             raise FileNotFoundError(f"{self.directory}: detection cache directory not found")
         self.source = f"cache:{self.directory}"

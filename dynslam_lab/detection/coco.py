@@ -4,17 +4,17 @@ Every detector in this toolkit speaks the 80 COCO classes (index = class id, the
 the COCO 2017 detection task as the YOLO families export it). The papers then say which of
 those classes may move, in three different ways, all kept here as plain tables:
 
-* **A-priori dynamic set** (Chang et al., IEEE TIM 2021, seed 003, Sec. III-A): *person,
+* **A-priori dynamic set** (Chang et al., IEEE TIM 2021, Chang et al. 2021, Sec. III-A): *person,
   bicycle, car, motorcycle, airplane, bus, train, truck, boat, bird, cat, dog, horse, sheep,
   cow, elephant, bear, zebra, giraffe*. Keypoints inside their masks are dropped at once.
-* **Six motion-probability categories** (Ge et al., ASG-SLAM 2024, seed 004, Sec. 2.4,
+* **Six motion-probability categories** (Ge et al., ASG-SLAM 2024, Ge et al. 2024, Sec. 2.4,
   Fig. 3): sturdy public facilities < household and office items < vehicles < personal
   belongings < humans < animals, "each sorted by the likelihood of motion". The paper gives
   the order but its probabilities only in a figure, so the defaults below are our reading
   (monotone in the paper's order); the class-to-category split of the 80 classes is ours too.
   The screening stage restores features of the least probable categories first while the
   static ratio ``delta = m / n`` (eq. 3) is below ``delta_1``.
-* **High / medium / low dynamic levels** (Zhang et al., IJGI 2023, seed 002, Sec. 4): objects in
+* **High / medium / low dynamic levels** (Zhang et al., IJGI 2023, Zhang et al. 2023, Sec. 4): objects in
   high and medium dynamic boxes are removed directly, low-dynamic (a-priori static) objects
   are checked with the epipolar constraint. The paper names the levels but not their
   members; our split: people and animals high, vehicles and hand-carried objects medium,
@@ -27,12 +27,9 @@ config explicitly.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Iterable
+from typing import Iterable
 
 import numpy as np
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .config import MotionPriorConfig
 
 __all__ = [
     "COCO_CLASSES",
@@ -65,7 +62,7 @@ COCO_CLASSES: list[str] = [
 
 _INDEX = {name: i for i, name in enumerate(COCO_CLASSES)}
 
-#: A-priori dynamic COCO classes of Chang et al. 2021 (seed 003, Sec. III-A), in the paper's order.
+#: A-priori dynamic COCO classes of Chang et al. 2021 (Chang et al. 2021, Sec. III-A), in the paper's order.
 APRIORI_DYNAMIC: tuple[str, ...] = (
     "person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck", "boat",
     "bird", "cat", "dog", "horse", "sheep", "cow", "elephant", "bear", "zebra", "giraffe",
@@ -80,7 +77,7 @@ _BELONGINGS = (
 )
 _PUBLIC = ("traffic light", "fire hydrant", "stop sign", "parking meter", "bench")
 
-#: ASG-SLAM's six categories (seed 004, Sec. 2.4), in increasing likelihood of motion.
+#: ASG-SLAM's six categories (Ge et al. 2024, Sec. 2.4), in increasing likelihood of motion.
 ASG_CATEGORIES: dict[str, tuple[str, ...]] = {
     "public_facility": _PUBLIC,
     "household_office": tuple(
@@ -107,7 +104,7 @@ ASG_PROBABILITIES: dict[str, float] = {
     "animal": 0.95,
 }
 
-#: Seed 002's three dynamic levels (Sec. 4); the members are our reading.
+#: Zhang et al.'s three dynamic levels (Sec. 4); the members are our reading.
 DYNAMIC_LEVELS: dict[str, tuple[str, ...]] = {
     "high": ("person", *_ANIMALS),
     "medium": (*_VEHICLES, *_BELONGINGS, "bottle", "cup", "book", "chair"),
@@ -139,10 +136,11 @@ def _names(class_ids: np.ndarray) -> list[str]:
     return [COCO_CLASSES[i] if 0 <= i < len(COCO_CLASSES) else "" for i in ids]
 
 
-def is_apriori_dynamic(class_ids: np.ndarray, priors: "MotionPriorConfig | None" = None) -> np.ndarray:
-    """``(N,)`` bool: whether each COCO class id is in the a-priori dynamic set (seed 003).
+def is_apriori_dynamic(class_ids: np.ndarray, priors=None) -> np.ndarray:
+    """``(N,)`` bool: whether each COCO class id is in the a-priori dynamic set (Chang et al. 2021).
 
-    ``priors.apriori_dynamic`` overrides the paper's set.
+    ``priors`` (a :class:`~dynslam_lab.detection.config.MotionPriorConfig`, or None for the
+    paper's tables): its ``apriori_dynamic`` overrides the paper's set.
     """
     members = set(APRIORI_DYNAMIC if priors is None else priors.apriori_dynamic)
     lut = np.array([c in members for c in COCO_CLASSES], dtype=bool)
@@ -153,8 +151,8 @@ def is_apriori_dynamic(class_ids: np.ndarray, priors: "MotionPriorConfig | None"
     return out
 
 
-def motion_probability(class_ids: np.ndarray, priors: "MotionPriorConfig | None" = None) -> np.ndarray:
-    """``(N,)`` float64 prior motion probability of each COCO class id (ASG-SLAM, seed 004).
+def motion_probability(class_ids: np.ndarray, priors=None) -> np.ndarray:
+    """``(N,)`` float64 prior motion probability of each COCO class id (ASG-SLAM, Ge et al. 2024).
 
     The class's category (``priors.asg_category_of``) selects a probability
     (``priors.asg_probabilities``). Ids outside COCO get 0 (treated as static).
@@ -169,7 +167,7 @@ def motion_probability(class_ids: np.ndarray, priors: "MotionPriorConfig | None"
     return out
 
 
-def dynamic_level(class_ids: np.ndarray, priors: "MotionPriorConfig | None" = None) -> list[str]:
-    """Seed 002's dynamic level (``"high"``, ``"medium"``, ``"low"``) of each COCO class id."""
+def dynamic_level(class_ids: np.ndarray, priors=None) -> list[str]:
+    """Zhang et al.'s dynamic level (``"high"``, ``"medium"``, ``"low"``) of each COCO class id."""
     level_of = DYNAMIC_LEVEL_OF if priors is None else priors.dynamic_level_of
     return [level_of.get(n, "low") for n in _names(class_ids)]

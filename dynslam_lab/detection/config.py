@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .coco import APRIORI_DYNAMIC, ASG_CATEGORY_OF, ASG_PROBABILITIES, DYNAMIC_LEVEL_OF
+from .coco import APRIORI_DYNAMIC, ASG_CATEGORY_OF, ASG_PROBABILITIES, DYNAMIC_LEVEL_OF, class_id
 
 __all__ = ["DetectionConfig", "OracleConfig", "MotionPriorConfig", "NMS_KINDS", "PREPROCESS_KINDS"]
 
@@ -48,13 +48,13 @@ class OracleConfig:
 class MotionPriorConfig:
     """Which COCO classes may move, after the papers (tables in :mod:`.coco`)."""
 
-    # A-priori dynamic classes, Chang et al. 2021 (seed 003) Sec. III-A. Default: their 19.
+    # A-priori dynamic classes, Chang et al. 2021 (Chang et al. 2021) Sec. III-A. Default: their 19.
     apriori_dynamic: tuple[str, ...] = APRIORI_DYNAMIC
-    # COCO class -> ASG-SLAM category (seed 004 Sec. 2.4, six categories; split is ours).
+    # COCO class -> ASG-SLAM category (Ge et al. 2024 Sec. 2.4, six categories; split is ours).
     asg_category_of: dict[str, str] = field(default_factory=lambda: dict(ASG_CATEGORY_OF))
     # ASG-SLAM category -> prior motion probability in 0..1 (our reading of Fig. 3).
     asg_probabilities: dict[str, float] = field(default_factory=lambda: dict(ASG_PROBABILITIES))
-    # COCO class -> "high" | "medium" | "low" dynamic level (seed 002 Sec. 4; split is ours).
+    # COCO class -> "high" | "medium" | "low" dynamic level (Zhang et al. 2023 Sec. 4; split is ours).
     dynamic_level_of: dict[str, str] = field(default_factory=lambda: dict(DYNAMIC_LEVEL_OF))
 
 
@@ -65,10 +65,10 @@ class DetectionConfig:
     # Keep detections with confidence >= this (0..1). Default 0.3 (YOLOX demo uses 0.3,
     # Ultralytics 0.25; the papers do not state theirs).
     score_threshold: float = 0.3
-    # Non-maximum suppression: "hard" (seed 002 eq. 5), "soft" (Gaussian-weighted soft-NMS
-    # of the improved YOLOv5, seed 002 Sec. 2.2; Bodla et al. 2017) or "none". Default "hard".
+    # Non-maximum suppression: "hard" (Zhang et al. 2023 eq. 5), "soft" (Gaussian-weighted soft-NMS
+    # of the improved YOLOv5, Zhang et al. 2023 Sec. 2.2; Bodla et al. 2017) or "none". Default "hard".
     nms: str = "hard"
-    # IoU above which hard NMS removes a box (N_t in seed 002 eq. 5). Default 0.45 (YOLOv5).
+    # IoU above which hard NMS removes a box (N_t in Zhang et al. 2023 eq. 5). Default 0.45 (YOLOv5).
     nms_iou: float = 0.45
     # Gaussian soft-NMS decay s_i <- s_i exp(-IoU^2 / sigma). Default 0.5 (Bodla et al. 2017).
     soft_nms_sigma: float = 0.5
@@ -97,7 +97,7 @@ class DetectionConfig:
     num_threads: int = 0
     # The oracle backend's imperfections.
     oracle: OracleConfig = field(default_factory=OracleConfig)
-    # Class motion-prior tables (seed 002, 003, 004).
+    # Class motion-prior tables (Zhang et al. 2023, 003, 004).
     priors: MotionPriorConfig = field(default_factory=MotionPriorConfig)
 
     def __post_init__(self) -> None:
@@ -120,8 +120,6 @@ class DetectionConfig:
             raise ValueError(f"detection.oracle.miss_rate: {o.miss_rate} is outside [0, 1]")
         if o.jitter < 0 or o.false_positives < 0:
             raise ValueError("detection.oracle: jitter and false_positives must be >= 0")
-        from .coco import class_id
-
         for c in self.classes:
             class_id(c)
         class_id(o.false_positive_class)

@@ -12,7 +12,7 @@ Layouts (``N`` anchor points, ``nc`` classes, strides 8/16/32 over an ``H x W`` 
   the class probabilities (sigmoid applied). The segmentation model adds 32 mask
   coefficients per anchor, ``[1, 4 + nc + 32, N]``, and prototypes ``[1, 32, H/4, W/4]``;
   an instance mask is ``sigmoid(c^T P)`` cropped to its box (YOLACT's linear combination of
-  prototypes, Bolya et al. 2019, which YOLOv8-seg and ASG-SLAM, seed 004, use).
+  prototypes, Bolya et al. 2019, which YOLOv8-seg and ASG-SLAM, Ge et al. 2024, use).
 * **YOLOv5** ``[1, 3N, 5 + nc]``: three anchors per cell, ``cx, cy, w, h`` decoded,
   objectness, class probabilities; score = objectness x class probability.
 * **YOLOX** ``[1, N, 5 + nc]`` *raw*: for the grid cell ``(g_x, g_y)`` of stride ``s``:

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .coco import COCO_CLASSES
+
 __all__ = ["Detections"]
 
 
@@ -59,8 +61,6 @@ class Detections:
     @property
     def names(self) -> list[str]:
         """COCO class names of the detections."""
-        from .coco import COCO_CLASSES
-
         return [COCO_CLASSES[i] if 0 <= i < len(COCO_CLASSES) else f"class{i}" for i in self.class_ids]
 
     def select(self, keep: np.ndarray) -> "Detections":

@@ -2,7 +2,7 @@
 
 A detector proposes many overlapping boxes per object; suppression keeps one.
 
-**Hard NMS** (Zhang et al., IJGI 2023, seed 002, Sec. 2.2, eq. 5): take the box ``M`` with
+**Hard NMS** (Zhang et al., IJGI 2023, Zhang et al. 2023, Sec. 2.2, eq. 5): take the box ``M`` with
 the highest score, then for every other box ``b_i``
 
 .. math::  s_i = \\begin{cases} s_i & \\mathrm{IoU}(M, b_i) < N_t \\\\ 0 & \\mathrm{IoU}(M, b_i) \\ge N_t \\end{cases}
@@ -96,7 +96,7 @@ def nms(
     class_ids: np.ndarray | None = None,
     max_detections: int | None = None,
 ) -> np.ndarray:
-    """Greedy hard NMS (seed 002 eq. 5).
+    """Greedy hard NMS (Zhang et al. 2023 eq. 5).
 
     Parameters
     ----------

@@ -1,8 +1,8 @@
 """Run any common ONNX export of a COCO detector with onnxruntime.
 
 The papers find a-priori dynamic objects with one-stage CNNs: Darknet19-YOLOv3 boxes
-(YOLO-SLAM, seed 000, Sec. 3.2), YOLOv5 boxes plus a segmentation head (seed 002), YOLACT
-masks (seed 003), YOLOv8 instance segmentation (ASG-SLAM, seed 004). Their exports differ
+(YOLO-SLAM, Wu et al. 2022, Sec. 3.2), YOLOv5 boxes plus a segmentation head (Zhang et al. 2023), YOLACT
+masks (Chang et al. 2021), YOLOv8 instance segmentation (ASG-SLAM, Ge et al. 2024). Their exports differ
 only in preprocessing and in the layout of the output tensors, so one class serves them all:
 
 1. :func:`recognise_layout` reads the model's inputs and outputs and names the family

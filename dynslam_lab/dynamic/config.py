@@ -26,31 +26,31 @@ from .semantic import SemanticConfig
 __all__ = ["ScreeningConfig", "STAGES", "FILTER_PRESETS"]
 
 #: Every stage a screener can chain, in the order they run.
-STAGES = ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "seed002", "restoration")
+STAGES = ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "level_rule", "restoration")
 
 #: Named filters (``dynslam run --filters NAME``) -> stages. ``oracle`` is handled apart.
 FILTER_PRESETS: dict[str, tuple[str, ...]] = {
     "none": (),
-    "semantic": ("semantic",),  # YOLO-SLAM "D", seed 003 "only with YOLACT"
+    "semantic": ("semantic",),  # YOLO-SLAM "D", Chang et al. 2021 "only with YOLACT"
     "depth_ransac": ("semantic", "depth_ransac"),  # YOLO-SLAM "D + G" (boxes + depth-RANSAC)
-    "geometry": ("epipolar", "multiview"),  # seed 003 "only with multi-view geometry"
+    "geometry": ("epipolar", "multiview"),  # Chang et al. 2021 "only with multi-view geometry"
     "full": ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "restoration"),
 }
 
 
 @dataclass(frozen=True)
 class ScreeningConfig:
-    """All screening parameters (seeds 000, 002, 003, 004)."""
+    """All screening parameters (all four papers)."""
 
     semantic: SemanticConfig = field(default_factory=SemanticConfig)  # semantic prior (all seeds)
-    depth_ransac: DepthRansacConfig = field(default_factory=DepthRansacConfig)  # YOLO-SLAM (seed 000)
-    lk: LkConfig = field(default_factory=LkConfig)  # LK matches with the previous frame (seed 004)
-    epipolar: EpipolarConfig = field(default_factory=EpipolarConfig)  # epipolar check (seeds 002-004)
-    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)  # RGB-D multi-view check (seed 003)
-    flow: FlowConfig = field(default_factory=FlowConfig)  # adaptive-threshold Farneback flow (seed 003)
-    restoration: RestorationConfig = field(default_factory=RestorationConfig)  # motion probability (seed 004)
+    depth_ransac: DepthRansacConfig = field(default_factory=DepthRansacConfig)  # YOLO-SLAM (Wu et al. 2022)
+    lk: LkConfig = field(default_factory=LkConfig)  # LK matches with the previous frame (Ge et al. 2024)
+    epipolar: EpipolarConfig = field(default_factory=EpipolarConfig)  # epipolar check (Zhang et al. 2023, Chang et al. 2021 and Ge et al. 2024)
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)  # RGB-D multi-view check (Chang et al. 2021)
+    flow: FlowConfig = field(default_factory=FlowConfig)  # adaptive-threshold Farneback flow (Chang et al. 2021)
+    restoration: RestorationConfig = field(default_factory=RestorationConfig)  # motion probability (Ge et al. 2024)
     priors: MotionPriorConfig = field(default_factory=MotionPriorConfig)  # class tables (detection.coco)
-    # Stages of the "full" filter; add "seed002" for seed 002's level rule. Default: see FILTER_PRESETS.
+    # Stages of the "full" filter; add "level_rule" for Zhang et al.'s level rule. Default: see FILTER_PRESETS.
     full_stages: tuple[str, ...] = FILTER_PRESETS["full"]
     # How epipolar and multi-view verdicts combine: "any" (either test), "both" (both must flag), or "auto":
     # "both" when the semantic stage runs (masks already hold the people; each test alone flags 1-2.5% of

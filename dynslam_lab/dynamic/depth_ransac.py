@@ -245,8 +245,9 @@ def screen_boxes(
 
     Returns
     -------
-    dynamic : ``(N,)`` bool, in the consensus set of at least one box (or, with
-        ``missing_depth_dynamic``, inside a box without depth).
+    dynamic : ``(N,)`` bool, in the consensus set of at least one box; a keypoint inside a box
+        but without depth follows ``config.missing_depth`` (``dynamic``, ``static``, or the
+        verdict of the nearest keypoint of the box that has a depth: ``nearest``).
     results : per box, its :class:`DepthRansacResult` (None for a box without keypoints).
     """
     uv = check_uv(uv)

@@ -1,14 +1,14 @@
-"""Epipolar check of keypoint matches (seed 002 eqs. 15-17, seed 003 eq. 1, seed 004 Sec. 2.3).
+"""Epipolar check of keypoint matches (Zhang et al. 2023 eqs. 15-17, Chang et al. 2021 eq. 1, Ge et al. 2024 Sec. 2.3).
 
 A static scene point seen in two frames satisfies the epipolar constraint
-``p2^T F p1 = 0`` (seed 004 eq. 1, seed 002 eq. 15): its pixel ``p2`` in the current frame
+``p2^T F p1 = 0`` (Ge et al. 2024 eq. 1, Zhang et al. 2023 eq. 15): its pixel ``p2`` in the current frame
 lies on the epipolar line of its pixel ``p1`` in the previous frame::
 
     l2 = (a, b, c)^T = F p1                                              (16)
     d  = |p2^T l2| / sqrt(a^2 + b^2)                                     (17)
 
 A point on an object that moved between the two frames leaves its line; ``d > mu`` marks it
-dynamic. ASG-SLAM (seed 004, Sec. 2.3) spells the procedure out, and we follow it:
+dynamic. ASG-SLAM (Ge et al. 2024, Sec. 2.3) spells the procedure out, and we follow it:
 
 1. match keypoints between the frames with pyramidal Lucas-Kanade optical flow (we track
    the current keypoints back into the previous image and keep a pair only when tracking
@@ -48,7 +48,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class LkConfig:
-    """Pyramidal Lucas-Kanade matching of keypoints between frames (ASG-SLAM, seed 004, Sec. 2.3)."""
+    """Pyramidal Lucas-Kanade matching of keypoints between frames (ASG-SLAM, Ge et al. 2024, Sec. 2.3)."""
 
     win_size: int = 11  # search window side (px); OpenCV default 21, ours 11 (1.5x faster than 15, same P/R on synthetic)
     max_level: int = 2  # pyramid levels above the image (reach ~ win * 2^level px); OpenCV default 3, ours 2
@@ -63,10 +63,10 @@ class LkConfig:
 
 @dataclass(frozen=True)
 class EpipolarConfig:
-    """Parameters of the epipolar check (seeds 002, 003, 004)."""
+    """Parameters of the epipolar check (Zhang et al. 2023, Chang et al. 2021 and Ge et al. 2024)."""
 
-    threshold_px: float = 1.0  # mu of seed 002 eq. 17 (px); not given in the papers, DS-SLAM uses 1.0
-    border_px: float = 20.0  # pairs this close to the image edge are left out of F (px); seed 004, value ours
+    threshold_px: float = 1.0  # mu of Zhang et al. 2023 eq. 17 (px); not given in the papers, DS-SLAM uses 1.0
+    border_px: float = 20.0  # pairs this close to the image edge are left out of F (px); Ge et al. 2024, value ours
     ransac_threshold_px: float = 1.0  # RANSAC inlier distance for F (px); ours, 1.0
     ransac_confidence: float = 0.999  # RANSAC confidence for F; ours, 0.999
     min_pairs: int = 15  # fewer pairs for F: the check is skipped; ours, 15 (8-point needs 8)

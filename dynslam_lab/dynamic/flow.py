@@ -1,7 +1,7 @@
-"""Dense optical flow with an adaptive threshold (Chang et al., IEEE TIM 2021, seed 003, Sec. III-C).
+"""Dense optical flow with an adaptive threshold (Chang et al., IEEE TIM 2021, Chang et al. 2021, Sec. III-C).
 
 A detector finds the person but not the chair, box or microphone the person pushes or carries.
-Seed 003 finds those "human-driven" objects in dense Farneback flow between adjacent frames.
+Chang et al. 2021 finds those "human-driven" objects in dense Farneback flow between adjacent frames.
 The flow intensity of pixel ``i`` is ``pixel_i = sqrt(u_i^2 + v_i^2)``; its mean over the ``n``
 pixels of the person mask is::
 
@@ -38,9 +38,9 @@ __all__ = ["FlowConfig", "FlowResult", "farneback_flow", "ego_motion_flow", "hum
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """Parameters of adaptive-threshold dense flow (seed 003, Sec. III-C)."""
+    """Parameters of adaptive-threshold dense flow (Chang et al. 2021, Sec. III-C)."""
 
-    factor: float = 2.0  # adaptive threshold = factor * mean flow in the person mask; seed 003: 2
+    factor: float = 2.0  # adaptive threshold = factor * mean flow in the person mask; Chang et al. 2021: 2
     scale: float = 0.25  # image scale for Farneback (0.25 -> 160x120 at 640x480); ours, for speed
     min_flow_px: float = 2.0  # floor of the threshold (full-resolution px); ours, 2.0
     touch_px: int = 8  # a region counts when it overlaps the person mask grown by this (full-res px); ours, 8

@@ -1,6 +1,6 @@
-"""Seed 002's rule: semantic levels decide, geometry checks the a-priori static.
+"""Zhang et al.'s rule: semantic levels decide, geometry checks the a-priori static.
 
-Zhang et al. (IJGI 2023, seed 002, Sec. 4) sort detected objects into three dynamic levels.
+Zhang et al. (IJGI 2023, Zhang et al. 2023, Sec. 4) sort detected objects into three dynamic levels.
 "Dynamic objects ... were directly removed when they were in high and medium dynamic boxes.
 For those dynamic objects with prior static, the algorithm ... uses geometric constraints to
 eliminate them": a keypoint on a low-level (a-priori static) object, or on no object, is
@@ -18,11 +18,11 @@ import numpy as np
 
 from .semantic import LEVEL_CODES
 
-__all__ = ["seed002_verdict"]
+__all__ = ["level_rule_verdict"]
 
 
-def seed002_verdict(level: np.ndarray, geometric: np.ndarray) -> np.ndarray:
-    """The verdict of seed 002's rule.
+def level_rule_verdict(level: np.ndarray, geometric: np.ndarray) -> np.ndarray:
+    """The verdict of Zhang et al.'s rule.
 
     Parameters
     ----------
@@ -37,7 +37,7 @@ def seed002_verdict(level: np.ndarray, geometric: np.ndarray) -> np.ndarray:
     level = np.asarray(level).reshape(-1)
     geometric = np.asarray(geometric, bool).reshape(-1)
     if level.shape != geometric.shape:
-        raise ValueError(f"seed002_verdict: level has {level.shape[0]} rows, geometric {geometric.shape[0]}")
+        raise ValueError(f"level_rule_verdict: level has {level.shape[0]} rows, geometric {geometric.shape[0]}")
     if level.size and (level.min() < 0 or level.max() > 3):
-        raise ValueError("seed002_verdict: level codes must be 0 (none), 1 (low), 2 (medium) or 3 (high)")
+        raise ValueError("level_rule_verdict: level codes must be 0 (none), 1 (low), 2 (medium) or 3 (high)")
     return (level >= LEVEL_CODES["medium"]) | geometric

@@ -1,4 +1,4 @@
-"""Background inpainting of dynamic regions from earlier keyframes (Chang et al. 2021, seed 003,
+"""Background inpainting of dynamic regions from earlier keyframes (Chang et al. 2021, Chang et al. 2021,
 Sec. III-D, eq. 4). For display only: the paper never tracks on inpainted images, neither do we.
 
 A historical keyframe ``F_k`` (colour, depth ``depth_k``, pose ``T_cw_k``) saw, at some earlier
@@ -32,9 +32,9 @@ __all__ = ["InpaintingConfig", "InpaintSource", "InpaintResult", "inpaint_backgr
 
 @dataclass(frozen=True)
 class InpaintingConfig:
-    """Parameters of background inpainting (seed 003, Sec. III-D)."""
+    """Parameters of background inpainting (Chang et al. 2021, Sec. III-D)."""
 
-    n_keyframes: int = 15  # keyframes used, newest first; seed 003: "10-20"
+    n_keyframes: int = 15  # keyframes used, newest first; Chang et al. 2021: "10-20"
     max_depth_m: float = 8.0  # keyframe depths beyond this are ignored (m); ours, 8.0 (Kinect range)
 
     def __post_init__(self) -> None:

@@ -1,4 +1,4 @@
-"""Motion-probability restoration (ASG-SLAM, Ge et al. 2024, seed 004, Sec. 2.4, eq. 3).
+"""Motion-probability restoration (ASG-SLAM, Ge et al. 2024, Ge et al. 2024, Sec. 2.4, eq. 3).
 
 Removing every keypoint on a potentially moving object can leave too few for tracking (a
 person filling the view, a desk full of cups and keyboards). ASG-SLAM grades COCO classes into
@@ -36,7 +36,7 @@ __all__ = ["RestorationConfig", "RestorationResult", "static_ratio", "restore_by
 
 @dataclass(frozen=True)
 class RestorationConfig:
-    """Parameters of motion-probability restoration (ASG-SLAM, seed 004, Sec. 2.4)."""
+    """Parameters of motion-probability restoration (ASG-SLAM, Ge et al. 2024, Sec. 2.4)."""
 
     delta_1: float = 0.3  # static-ratio threshold delta_1 of eq. 3 (0..1); not given in the paper, ours 0.3
     geometric_veto: bool = True  # never restore a keypoint a geometric test flagged; ours, True

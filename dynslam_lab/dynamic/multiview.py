@@ -1,4 +1,4 @@
-"""Multi-view RGB-D check (Chang et al., IEEE TIM 2021, seed 003, Sec. III-B, eq. 2, Sec. IV-A).
+"""Multi-view RGB-D check (Chang et al., IEEE TIM 2021, Chang et al. 2021, Sec. III-B, eq. 2, Sec. IV-A).
 
 With depth, a keypoint seen in the previous frame at ``x`` with depth ``s1`` predicts where it
 must appear in the current frame if it is static::
@@ -35,10 +35,10 @@ __all__ = ["MultiViewConfig", "MultiViewResult", "rough_pose", "multiview_check"
 
 @dataclass(frozen=True)
 class MultiViewConfig:
-    """Parameters of the multi-view RGB-D check (seed 003, Sec. III-B)."""
+    """Parameters of the multi-view RGB-D check (Chang et al. 2021, Sec. III-B)."""
 
-    reprojection_px: float = 4.0  # pixel distance |x' - x_hat| above which a keypoint is dynamic (px); seed 003: 4
-    depth_m: float = 0.1  # depth difference |s2 - depth| above which a keypoint is dynamic (m); seed 003: 0.1
+    reprojection_px: float = 4.0  # pixel distance |x' - x_hat| above which a keypoint is dynamic (px); Chang et al. 2021: 4
+    depth_m: float = 0.1  # depth difference |s2 - depth| above which a keypoint is dynamic (m); Chang et al. 2021: 0.1
     # The depth threshold grows as max(depth_m, depth_quadratic * z^2) with the measured depth z (m): a Kinect's
     # depth error grows with z^2 (Khoshelham & Elberink 2012); 0.01 /m keeps 0.1 m up to 3.2 m and allows 0.25 m
     # at 5 m (about three disparity steps). Ours; 0 = the paper's fixed 0.1 m.
@@ -80,7 +80,7 @@ class MultiViewResult:
 
 
 def rough_pose(points_prev: np.ndarray, uv: np.ndarray, K: np.ndarray, config: MultiViewConfig = MultiViewConfig()):
-    """The "slightly tracking" pose (seed 003, Sec. IV-A) by PnP-RANSAC.
+    """The "slightly tracking" pose (Chang et al. 2021, Sec. IV-A) by PnP-RANSAC.
 
     Parameters
     ----------

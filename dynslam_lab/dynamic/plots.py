@@ -17,7 +17,7 @@ REASON_COLOURS = {
     "epipolar": "#9467bd",  # purple
     "multiview": "#1f77b4",  # blue
     "flow": "#e377c2",  # pink
-    "seed002": "#8c564b",  # brown
+    "level_rule": "#8c564b",  # brown
     "restored": "#17becf",  # cyan
     "oracle": "#000000",
 }

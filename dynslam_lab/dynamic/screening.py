@@ -7,12 +7,12 @@ in ``docs/architecture.md``). ``filters`` is a named preset or a comma-separated
 =================  =====================================================================
 ``none``           no screening (``build_screener`` returns None)
 ``semantic``       semantic prior: keypoints on a-priori dynamic detections (YOLO-SLAM "D")
-``depth_ransac``   person boxes + depth-RANSAC (YOLO-SLAM "D + G", seed 000)
-``geometry``       epipolar + multi-view checks, no detector (seed 003 "multi-view only")
+``depth_ransac``   person boxes + depth-RANSAC (YOLO-SLAM "D + G", Wu et al. 2022)
+``geometry``       epipolar + multi-view checks, no detector (Chang et al. 2021 "multi-view only")
 ``full``           semantic (masks), depth-RANSAC for box-only detections, epipolar,
                    multi-view, adaptive flow, motion-probability restoration
 ``oracle``         the synthetic renderer's truly moving instances (perfect masks)
-``a,b,c``          any of ``semantic, depth_ransac, epipolar, multiview, flow, seed002, restoration``
+``a,b,c``          any of ``semantic, depth_ransac, epipolar, multiview, flow, level_rule, restoration``
 =================  =====================================================================
 
 How the columns combine into the verdict (per keypoint):
@@ -24,8 +24,8 @@ How the columns combine into the verdict (per keypoint):
   detections are left out of F and of the rough pose; a test that cannot run (too few pairs, camera
   at rest for F) does not vote;
 * ``flow`` = inside a human-driven flow region;
-* ``dynamic = prior or geometric or flow`` (with ``seed002``: ``prior`` is replaced by
-  "high/medium level", seed 002's rule);
+* ``dynamic = prior or geometric or flow`` (with ``level_rule``: ``prior`` is replaced by
+  "high/medium level", Zhang et al.'s rule);
 * ``restoration`` gives back prior-only keypoints while the static ratio is below ``delta_1``.
 
 The screener keeps the previous grey image and depth between calls; ``reset()`` forgets them
@@ -130,11 +130,11 @@ class Screener:
         on = set(self.stages)
 
         # 1. semantic prior ------------------------------------------------------
-        use_seed002 = "seed002" in on
+        use_level_rule = "level_rule" in on
         sem_cfg = cfg.semantic
         if "depth_ransac" in on and "epipolar" not in on and "flow" not in on:
             sem_cfg = replace(sem_cfg, use_masks=False)  # YOLO-SLAM works on boxes
-        if use_seed002:
+        if use_level_rule:
             sem_cfg = replace(sem_cfg, prior="levels")
         dets = detections if "semantic" in on else None
         sem = semantic_prior(uv, dets, sem_cfg, cfg.priors)
@@ -227,14 +227,14 @@ class Screener:
             stages["flow"] = flow_flag
             timings["flow"] = _ms(t)
 
-        # 6. seed 002's rule, the verdict, and motion-probability restoration ---
-        if use_seed002:
-            from .geometric_rule import seed002_verdict
+        # 6. Zhang et al.'s rule, the verdict, and motion-probability restoration ---
+        if use_level_rule:
+            from .geometric_rule import level_rule_verdict
 
             lvl = sem.level.copy()
             lvl[~prior & (lvl >= 2)] = 1  # depth-RANSAC background inside a box: judged geometrically
-            dynamic = seed002_verdict(lvl, geometric) | flow_flag
-            stages["seed002"] = dynamic.copy()
+            dynamic = level_rule_verdict(lvl, geometric) | flow_flag
+            stages["level_rule"] = dynamic.copy()
             prior = prior & (lvl >= 2)
         else:
             dynamic = prior | geometric | flow_flag
@@ -258,8 +258,8 @@ class Screener:
                 if st in ("epipolar", "multiview"):
                     col = col & geometric  # with geometric_vote="both" a lone flag does not decide
             reason[col & dynamic] = st
-        if "seed002" in stages:
-            reason[dynamic & (reason == "")] = "seed002"
+        if "level_rule" in stages:
+            reason[dynamic & (reason == "")] = "level_rule"
         reason[restored] = "restored"
 
         # region mask: the dynamic detections still dynamic, their box-depth regions, flow regions

@@ -1,15 +1,15 @@
 """Semantic prior: keypoints on objects of classes that tend to move.
 
-The first screening step of all four papers. A detector gives boxes (YOLO-SLAM, seed 000)
-or instance masks (YOLACT in Chang et al. 2021, seed 003, Sec. III-A; YOLOv8-seg in ASG-SLAM,
-seed 004, Sec. 2.2; the improved YOLOv5 with a PSPNet head in seed 002, Sec. 2). Each
+The first screening step of all four papers. A detector gives boxes (YOLO-SLAM, Wu et al. 2022)
+or instance masks (YOLACT in Chang et al. 2021, Chang et al. 2021, Sec. III-A; YOLOv8-seg in ASG-SLAM,
+Ge et al. 2024, Sec. 2.2; the improved YOLOv5 with a PSPNet head in Zhang et al. 2023, Sec. 2). Each
 keypoint takes the class and the instance of the detection it falls in (the highest-scoring
 one where detections overlap); a keypoint is *a priori dynamic* when that class is in the
 chosen prior set:
 
-* ``"apriori"``: the 19 a-priori dynamic COCO classes of seed 003 (person, vehicles, animals);
-* ``"levels"``: the high and medium dynamic levels of seed 002 (people and animals; vehicles and
-  hand-carried objects), whose features are "directly removed" (seed 002, Sec. 4).
+* ``"apriori"``: the 19 a-priori dynamic COCO classes of Chang et al. 2021 (person, vehicles, animals);
+* ``"levels"``: the high and medium dynamic levels of Zhang et al. 2023 (people and animals; vehicles and
+  hand-carried objects), whose features are "directly removed" (Zhang et al. 2023, Sec. 4).
 
 The class tables live in :mod:`dynslam_lab.detection.coco`; their editable copies in
 :class:`dynslam_lab.detection.config.MotionPriorConfig`.
@@ -25,16 +25,16 @@ from .table import check_uv
 
 __all__ = ["SemanticConfig", "SemanticResult", "semantic_prior", "LEVEL_CODES", "level_codes"]
 
-#: Integer codes of seed 002's dynamic levels (0 = keypoint on no detection).
+#: Integer codes of Zhang et al.'s dynamic levels (0 = keypoint on no detection).
 LEVEL_CODES = {"none": 0, "low": 1, "medium": 2, "high": 3}
 
 
 @dataclass(frozen=True)
 class SemanticConfig:
-    """Parameters of the semantic prior (seeds 000, 002, 003, 004)."""
+    """Parameters of the semantic prior (all four papers)."""
 
-    prior: str = "apriori"  # "apriori" (seed 003's 19 classes) or "levels" (seed 002 high + medium); default "apriori"
-    use_masks: bool = True  # instance masks when the detector has them, boxes otherwise; seeds 003/004 use masks
+    prior: str = "apriori"  # "apriori" (Chang et al.'s 19 classes) or "levels" (Zhang et al. 2023 high + medium); default "apriori"
+    use_masks: bool = True  # instance masks when the detector has them, boxes otherwise; Chang et al. 2021 and Ge et al. 2024 use masks
     min_score: float = 0.0  # ignore detections below this confidence (0..1); default 0 (detector already thresholds)
     mask_dilation_px: int = 0  # grow masks by this many pixels (radius); ours, default 0
 
@@ -53,8 +53,8 @@ class SemanticResult:
     ----------
     instance : ``(N,)`` int64 detection index, -1 for none.
     class_id : ``(N,)`` int64 COCO class, -1 for none.
-    motion_prob : ``(N,)`` float64 ASG-SLAM prior motion probability (seed 004), 0 for none.
-    level : ``(N,)`` int8 seed 002 level code (:data:`LEVEL_CODES`).
+    motion_prob : ``(N,)`` float64 ASG-SLAM prior motion probability (Ge et al. 2024), 0 for none.
+    level : ``(N,)`` int8 Zhang et al. 2023 level code (:data:`LEVEL_CODES`).
     flagged : ``(N,)`` bool, on a detection of the prior set.
     dynamic_detections : ``(D,)`` bool, which detections belong to the prior set.
     """
@@ -68,7 +68,7 @@ class SemanticResult:
 
 
 def level_codes(class_ids: np.ndarray, priors=None) -> np.ndarray:
-    """Seed 002 level code of each COCO class id (``-1`` -> 0 = none)."""
+    """Zhang et al. 2023 level code of each COCO class id (``-1`` -> 0 = none)."""
     from ..detection.coco import dynamic_level
 
     ids = np.asarray(class_ids, np.int64).reshape(-1)

@@ -75,7 +75,7 @@ class KeypointTable:
     depth : ``(N,)`` float64 metres at the keypoint, ``nan`` where the sensor has none.
     class_id : ``(N,)`` int64 COCO class of the detection the keypoint falls in, -1 for none.
     instance : ``(N,)`` int64 index of that detection in the frame's ``Detections``, -1 for none.
-    motion_prob : ``(N,)`` float64 prior motion probability of the class (ASG-SLAM, seed 004), 0 for none.
+    motion_prob : ``(N,)`` float64 prior motion probability of the class (ASG-SLAM, Ge et al. 2024), 0 for none.
     stages : stage name -> ``(N,)`` bool, the keypoints that stage judged dynamic, in run order.
     values : column name -> ``(N,)`` float64 measurements behind the verdicts
         (``epipolar_px``, ``reprojection_px``, ``depth_error_m``, ...), ``nan`` where not measured.

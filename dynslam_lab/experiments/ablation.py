@@ -1,7 +1,7 @@
 """Ablation of the screening stages: one SLAM run per filter, ATE and keypoint scores in a table.
 
 The papers' component tables compare the same system with parts switched on and off:
-YOLO-SLAM (seed 000) Table 3 (ORB-SLAM2 / D / G / D + G) and Chang et al. (seed 003) Table I
+YOLO-SLAM (Wu et al. 2022) Table 3 (ORB-SLAM2 / D / G / D + G) and Chang et al. (Chang et al. 2021) Table I
 (ORB-SLAM2 / only YOLACT / only multi-view geometry / all). :func:`run_ablation` does the same
 with our filters (``none``, ``semantic``, ``depth_ransac``, ``geometry``, ``full`` and, on
 synthetic sequences, ``oracle`` = perfect masks) and reports per filter and sequence:
@@ -22,6 +22,14 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+
+from ..config import Config
+from ..datasets.tum import TumSequence
+from ..dynamic.screening import FILTERS
+from ..pipeline import build_pipeline
+from ..runs import run_sequence
+from .scoring import KeypointScorer
 
 __all__ = ["DEFAULT_FILTERS", "run_ablation", "ablation_markdown"]
 
@@ -40,7 +48,7 @@ def run_ablation(
     outdir: str | Path,
     filters=DEFAULT_FILTERS,
     detector: str = "auto",
-    config=None,
+    config: Config | None = None,
     max_frames: int | None = None,
     loop_closing: bool = False,
     progress: bool = True,
@@ -55,7 +63,8 @@ def run_ablation(
     filters : filter names (see :func:`dynslam_lab.dynamic.screening.build_screener`).
     detector : detector spec for the filters that need one; ``"auto"`` = ``oracle`` on synthetic
         sequences (instance masks present) and an error elsewhere.
-    config : root :class:`dynslam_lab.config.Config` (its ``screening`` section when present).
+    config : root :class:`~dynslam_lab.config.Config` (defaults when None); every run is built
+        from it by :func:`~dynslam_lab.pipeline.build_pipeline`.
     max_frames : frames per run (None = all).
     loop_closing : run the loop closer too.
     camera : camera preset override.
@@ -65,76 +74,47 @@ def run_ablation(
     DataFrame with columns ``sequence, filter, ate_rmse_m, improvement_pct, precision, recall,
     tracked, lost, frames, screen_median_ms, run_dir``.
     """
-    import pandas as pd
-
-    from ..datasets.tum import TumSequence
-    from ..slam.runner import run_sequence
-    from .scoring import ScoringScreener
-    from ..dynamic.screening import FILTERS, build_screener
-
     if isinstance(seqdirs, (str, Path)):
         seqdirs = [seqdirs]
     filters = [str(f).strip().lower() for f in filters]
     for f in filters:
         if f not in FILTERS and "," not in f:
             raise ValueError(f"ablation: unknown filter {f!r}; choose from {list(FILTERS)} or a comma-separated stage list")
-    if config is None:
-        from ..config import Config
-
-        config = Config()
-    scfg = getattr(config, "screening", None)
+    config = config if config is not None else Config()
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     sequences = [TumSequence(d, camera=camera) for d in seqdirs]
+    specs = {seq.root: _detector_spec(seq, detector) for seq in sequences}
     for seq in sequences:  # check before the first (long) run
-        if detector in (None, "none") or (detector == "auto" and not _has_truth(seq)):
-            need = [f for f in filters if f not in _NO_DETECTOR]
-            if need:
-                raise ValueError(
-                    f"ablation: filters {need} need a detector for {seq.root} (no synthetic masks there); "
-                    "pass --detector onnx:MODEL or cache:DIR"
-                )
+        need = [f for f in filters if f not in _NO_DETECTOR]
+        if need and specs[seq.root] in (None, "none"):
+            raise ValueError(
+                f"ablation: filters {need} need a detector for {seq.root} (no synthetic masks there); "
+                "pass --detector onnx:MODEL or cache:DIR"
+            )
     rows = []
     for seq in sequences:
         truth = _has_truth(seq)
-        det_spec = detector
-        if detector == "auto":
-            det_spec = "oracle" if truth else None
-        det = None
         for name in filters:
             if name == "oracle" and not truth:
                 continue  # perfect masks exist only for synthetic sequences
-            needs_det = name not in _NO_DETECTOR
-            if needs_det and det is None:
-                if not det_spec or det_spec == "none":
-                    raise ValueError(
-                        f"ablation: filter {name!r} needs a detector for {seq.root} (no synthetic masks there); "
-                        "pass --detector onnx:MODEL or cache:DIR"
-                    )
-                from ..detection import build_detector
-
-                det = build_detector(det_spec, getattr(config, "detection", None))
-            screener = ScoringScreener(build_screener(name, scfg))
-            loop = None
-            if loop_closing:
-                from ..slam.loop_closing import LoopCloser
-
-                loop = LoopCloser(getattr(config, "loop_closing", None))
+            det_spec = "none" if name in _NO_DETECTOR else specs[seq.root]
+            system = build_pipeline(config, seq.camera, detector=det_spec, filters=name, loop_closing=loop_closing)
+            scorer = KeypointScorer()
             run_dir = outdir / seq.name / name.replace(",", "+")
-            summary = run_sequence(seq, run_dir, config, detector=det if needs_det else None, screener=screener,
-                                   loop_closer=loop, max_frames=max_frames, progress=progress)
+            summary = run_sequence(seq, run_dir, system, max_frames=max_frames, progress=progress, on_frame=scorer)
             ate = (summary.get("ate") or {}).get("rmse", float("nan"))
-            screen_ms = [t.get("total", math.nan) for t in screener.timings_ms]
+            screen_ms = np.array(scorer.screen_ms, float)
             rows.append({
                 "sequence": seq.name,
                 "filter": name,
                 "ate_rmse_m": float(ate) if ate is not None else float("nan"),
-                "precision": screener.score.precision if truth else float("nan"),
-                "recall": screener.score.recall if truth else float("nan"),
+                "precision": scorer.score.precision if truth else float("nan"),
+                "recall": scorer.score.recall if truth else float("nan"),
                 "tracked": summary.get("tracked"),
                 "lost": summary.get("lost"),
                 "frames": summary.get("frames"),
-                "screen_median_ms": float(np.nanmedian(screen_ms)) if np.isfinite(screen_ms).any() else float("nan"),
+                "screen_median_ms": float(np.nanmedian(screen_ms)) if name != "none" and np.isfinite(screen_ms).any() else float("nan"),
                 "run_dir": str(run_dir),
             })
     df = pd.DataFrame(rows)
@@ -152,6 +132,12 @@ def run_ablation(
     return df
 
 
+def _detector_spec(seq: TumSequence, detector: str | None) -> str | None:
+    if detector == "auto":
+        return "oracle" if _has_truth(seq) else None
+    return detector
+
+
 def _fmt(v, digits=4) -> str:
     if v is None:
         return "-"
@@ -162,7 +148,7 @@ def _fmt(v, digits=4) -> str:
 
 def ablation_markdown(df) -> str:
     """The ablation as markdown: ATE RMSE per filter (rows) and sequence (columns), like YOLO-SLAM
-    Table 3 / seed 003 Table I, then every measured column."""
+    Table 3 / Chang et al. 2021 Table I, then every measured column."""
     if len(df) == 0:
         return "# Ablation\n\n(no runs)\n"
     seqs = list(dict.fromkeys(df["sequence"]))

@@ -27,7 +27,7 @@ import numpy as np
 from ..dynamic.oracle import truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at
 
-__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener"]
+__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer"]
 
 
 @dataclass
@@ -72,9 +72,10 @@ def score_keypoints(predicted: np.ndarray, truth: np.ndarray) -> KeypointScore:
 class ScoringScreener:
     """Wraps a screener and scores every table it returns against the synthetic truth.
 
-    Use it in place of the screener (``run_sequence(..., screener=ScoringScreener(s))``); after the
-    run ``score`` holds the summed counts and ``per_frame`` one :class:`KeypointScore` per frame
-    that had truth. With ``inner=None`` (the ``none`` filter) every keypoint is judged static.
+    For screening on its own (notebooks, tests, ``benchmarks/screening_speed.py``): call
+    ``screen`` frame by frame; ``score`` holds the summed counts and ``per_frame`` one
+    :class:`KeypointScore` per frame that had truth. With ``inner=None`` (the ``none`` filter)
+    every keypoint is judged static. A whole run is scored by :class:`KeypointScorer`.
     """
 
     inner: object | None
@@ -102,3 +103,24 @@ class ScoringScreener:
             self.score = self.score + s
         self.timings_ms.append(dict(table.timings_ms))
         return table
+
+
+@dataclass
+class KeypointScorer:
+    """Scores the verdicts of a whole run: pass it as ``run_sequence(..., on_frame=scorer)``.
+
+    After the run ``score`` holds the summed counts of the frames that had truth, ``per_frame``
+    one :class:`KeypointScore` each, and ``screen_ms`` the screening time of every frame.
+    """
+
+    score: KeypointScore = field(default_factory=KeypointScore)
+    per_frame: list[KeypointScore] = field(default_factory=list)
+    screen_ms: list[float] = field(default_factory=list)
+
+    def __call__(self, frame, result) -> None:
+        self.screen_ms.append(float(result.timings_ms.get("screen", float("nan"))))
+        truth = truth_dynamic(frame, result.uv)
+        if truth is not None:
+            s = score_keypoints(result.dynamic, truth)
+            self.per_frame.append(s)
+            self.score = self.score + s

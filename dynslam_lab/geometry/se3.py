@@ -144,7 +144,7 @@ def pose_to_tum(T: np.ndarray) -> np.ndarray:
 
 def so3_exp(omega: np.ndarray) -> np.ndarray:
     """Rotation vector(s) ``(..., 3)`` (radians) to matrices ``(..., 3, 3)`` (Rodrigues)."""
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # here: the viewer reads poses without loading scipy
 
     omega = np.asarray(omega, dtype=np.float64)
     return Rotation.from_rotvec(omega.reshape(-1, 3)).as_matrix().reshape(omega.shape[:-1] + (3, 3))
@@ -152,7 +152,7 @@ def so3_exp(omega: np.ndarray) -> np.ndarray:
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (radians)."""
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # here: the viewer reads poses without loading scipy
 
     R = np.asarray(R, dtype=np.float64)
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))

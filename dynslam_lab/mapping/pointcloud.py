@@ -228,7 +228,7 @@ def statistical_outlier_mask(xyz: np.ndarray, k: int = 50, std_ratio: float = 1.
     -------
     ``(N,)`` bool, True for the points kept (inliers).
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # here: the viewer reads map.ply through mapping/ without loading scipy
 
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.ndim != 2 or xyz.shape[1] != 3:

@@ -50,10 +50,13 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
+from ..camera import PinholeCamera
 from ..features.matching import TH_LOW, hamming_pairs, match_descriptors
 from ..geometry.align import AlignmentError, ransac_rigid_3d, umeyama_alignment
 from ..geometry.se3 import make_pose, se3_inv, transform_points
 from .keyframe_database import CandidateQueryConfig, KeyframeDatabase, LoopCandidate, static_bow
+from .local_mapping import bundle_adjust_map, replace_points
+from .optimize import Observations, optimize_pose
 from .pose_graph import PoseGraphConfig, correct_points, optimize_pose_graph
 from .vocabulary import BowVector, Vocabulary, bow_score, default_vocabulary
 
@@ -66,7 +69,6 @@ __all__ = [
     "match_points_3d",
     "refine_loop_pose",
     "consistent_candidates",
-    "intrinsics_from_keyframe",
     "global_bundle_adjustment",
 ]
 
@@ -92,7 +94,6 @@ class LoopClosingConfig:
     fuse_points: bool = True  # fuse the matched map points of the two sides; ORB-SLAM2: always
     global_ba: bool = True  # full bundle adjustment after the pose graph; ORB-SLAM2: yes (in a thread)
     global_ba_iterations: int = 10  # least_squares evaluations of the global BA; ours (ORB-SLAM2: 10 g2o iterations)
-    ba_bf: float = 40.0  # virtual baseline x fx (px m) of the u_R residual; must match tracking.bf; ORB-SLAM2 TUM: 40
     seed: int = 0  # RANSAC random generator seed (ours)
     query: CandidateQueryConfig = field(default_factory=CandidateQueryConfig)
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
@@ -264,8 +265,8 @@ def match_points_3d(
     return ip[first], ik[first]
 
 
-def refine_loop_pose(kf, mp, pids: np.ndarray, T_q_w: np.ndarray, config: LoopClosingConfig
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def refine_loop_pose(kf, mp, pids: np.ndarray, T_q_w: np.ndarray, config: LoopClosingConfig, camera: PinholeCamera,
+                     bf: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match the loop group's map points ``pids`` to the query keyframe and refine its pose on them.
 
     ORB-SLAM2 (``ComputeSim3``) refines the RANSAC estimate by minimising *reprojection* errors
@@ -276,27 +277,22 @@ def refine_loop_pose(kf, mp, pids: np.ndarray, T_q_w: np.ndarray, config: LoopCl
     ``config.refine_rounds`` rounds: the map points are brought into the query camera with the
     current pose ``T_q_w``, matched in 3D (:func:`match_points_3d`), and ``T_q_w`` is refined on
     the matches by the SLAM core's motion-only bundle adjustment (pixel and virtual right-pixel
-    residuals, Huber kernel, chi^2 outlier rejection: :func:`~dynslam_lab.slam.optimize.optimize_pose`).
+    residuals, Huber kernel, chi^2 outlier rejection: :func:`~dynslam_lab.slam.optimize.optimize_pose`)
+    with the sequence's ``camera`` and virtual stereo baseline ``bf`` (px m, the tracking's).
 
     Returns ``(T_q_w (4, 4), point_idx (K,), keypoint_idx (K,))``: the refined world-to-query
     pose and the inlier matches (indices into ``pids`` and into the query's keypoints).
     """
-    from ..camera import PinholeCamera
-    from .optimize import Observations, optimize_pose
-
     static_q = np.asarray(kf.static, bool)
     pts_q = np.where(static_q[:, None], kf.points_c, np.nan)
-    camera = None
     ip = ik = np.zeros(0, np.int64)
     for rnd in range(config.refine_rounds + 1):
         X_q = transform_points(T_q_w, mp.xyz[pids])
         ip, ik = match_points_3d(X_q, mp.descriptors[pids], pts_q, kf.descriptors, config.inlier_abs, config.inlier_rel)
         if len(ip) < config.min_map_matches or rnd == config.refine_rounds:
             break
-        if camera is None:
-            camera = PinholeCamera(*intrinsics_from_keyframe(kf.uv, kf.points_c))
-        obs = Observations.from_keypoints(kf.uv[ik], kf.points_c[ik, 2], kf.octave[ik], config.ba_bf, mp.scale_factor)
-        T_q_w, _out = optimize_pose(T_q_w, mp.xyz[pids[ip]], obs, camera, config.ba_bf)
+        obs = Observations.from_keypoints(kf.uv[ik], kf.points_c[ik, 2], kf.octave[ik], bf, mp.scale_factor)
+        T_q_w, _out = optimize_pose(T_q_w, mp.xyz[pids[ip]], obs, camera, bf)
     return T_q_w, ip, ik
 
 
@@ -342,43 +338,19 @@ def consistent_candidates(
 
 
 # --------------------------------------------------------------------------- global BA
-def intrinsics_from_keyframe(uv: np.ndarray, points_c: np.ndarray) -> tuple[float, float, float, float]:
-    """``(fx, fy, cx, cy)`` recovered from a keyframe's pixels and their back-projected points.
-
-    ``points_c`` was made from ``uv`` with the pinhole model, ``u = fx x/z + cx``, ``v = fy y/z + cy``,
-    so a linear least-squares fit over the keypoints with depth gives the intrinsics back exactly.
-    """
-    ok = np.all(np.isfinite(points_c), axis=1) & (points_c[:, 2] > 0)
-    if ok.sum() < 3:
-        raise ValueError("intrinsics_from_keyframe: fewer than 3 keypoints with depth")
-    X = points_c[ok]
-    out = []
-    for a in (0, 1):
-        A = np.stack([X[:, a] / X[:, 2], np.ones(len(X))], axis=1)
-        (f, c), *_ = np.linalg.lstsq(A, uv[ok, a], rcond=None)
-        out.append((float(f), float(c)))
-    return out[0][0], out[1][0], out[0][1], out[1][1]
-
-
-def global_bundle_adjustment(mp, fixed_kf: int, bf: float = 40.0, iterations: int = 10) -> dict:
+def global_bundle_adjustment(mp, fixed_kf: int, camera: PinholeCamera, bf: float, iterations: int = 10) -> dict:
     """Bundle adjustment of every keyframe and map point (ORB-SLAM2 ``RunGlobalBundleAdjustment``).
 
     Uses the SLAM core's :func:`~dynslam_lab.slam.optimize.local_bundle_adjustment` (stereo
     residuals ``(u, v, u_R)``, Huber kernel) with all keyframes free but ``fixed_kf`` (and the map
-    origin); poses and points are written back, outlier observations removed. The intrinsics come
-    from the keyframes themselves (:func:`intrinsics_from_keyframe`).
+    origin); poses and points are written back, outlier observations removed. ``camera`` and
+    ``bf`` (px m) are the sequence's intrinsics and the tracking's virtual stereo baseline.
     """
-    from ..camera import PinholeCamera
-    from .local_mapping import bundle_adjust_map
-
     pts = mp.point_ids()
     o_kf, o_pt, o_kp = mp.observations_of(pts)
     if len(o_kf) == 0:
         return {"gba_points": 0}
     kfs = {int(k): mp.keyframes[int(k)] for k in np.unique(o_kf)}
-    ref = max(kfs.values(), key=lambda k: int(np.isfinite(k.points_c[:, 2]).sum()))
-    fx, fy, cx, cy = intrinsics_from_keyframe(ref.uv, ref.points_c)
-    camera = PinholeCamera(fx, fy, cx, cy)
     fixed = {int(fixed_kf), int(min(mp.keyframes))} & set(kfs)
     if not fixed:
         fixed = {min(kfs)}
@@ -428,6 +400,8 @@ class LoopCloser:
     Parameters
     ----------
     config : thresholds (:class:`LoopClosingConfig`).
+    camera : the sequence's intrinsics (refinement and global BA reproject with them).
+    bf : virtual stereo baseline x fx (px m) of the ``u_R`` residual: the tracking's ``bf``.
     vocabulary : the binary vocabulary; default: the one shipped with the package.
 
     Attributes
@@ -438,8 +412,10 @@ class LoopCloser:
     last_candidates : candidate ids of the last keyframe (for notebooks).
     """
 
-    def __init__(self, config: LoopClosingConfig | None = None, vocabulary: Vocabulary | None = None):
-        self.config = config if config is not None else LoopClosingConfig()
+    def __init__(self, config: LoopClosingConfig, camera: PinholeCamera, bf: float, vocabulary: Vocabulary | None = None):
+        self.config = config
+        self.camera = camera
+        self.bf = float(bf)
         self.vocabulary = vocabulary if vocabulary is not None else default_vocabulary()
         self.database = KeyframeDatabase(self.vocabulary.n_words)
         self.loops: list[LoopResult] = []
@@ -548,7 +524,7 @@ class LoopCloser:
         pids = np.unique(np.concatenate([mp.keyframes[k].map_point_ids for k in group]))
         pids = pids[pids >= 0]
         pids = pids[mp.alive[pids]]
-        T_q_w, ip, ik = refine_loop_pose(kf, mp, pids, T_q_c @ cand.T_c_w, cfg)
+        T_q_w, ip, ik = refine_loop_pose(kf, mp, pids, T_q_c @ cand.T_c_w, cfg, self.camera, self.bf)
         if len(ip) < cfg.min_map_matches:
             return None
         T_q_c = T_q_w @ cand.T_w_c
@@ -665,7 +641,7 @@ class LoopCloser:
         kf.loop_edges.add(loop_kf.id)
         loop_kf.loop_edges.add(kf.id)
         if cfg.global_ba:
-            global_bundle_adjustment(mp, fixed_kf=loop_kf.id, bf=cfg.ba_bf, iterations=cfg.global_ba_iterations)
+            global_bundle_adjustment(mp, loop_kf.id, self.camera, self.bf, cfg.global_ba_iterations)
         return C, n_fused, ids
 
     @staticmethod
@@ -682,7 +658,6 @@ class LoopCloser:
     @staticmethod
     def _fuse(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> int:
         """Make the query keypoints ``kp_idx`` observe the loop points ``loop_pids``; duplicates merge."""
-        from .local_mapping import replace_points
 
         cur = kf.map_point_ids[kp_idx]
         free = cur < 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..features.matching import hamming_pairs
 from .frame import KeyFrame
 
 __all__ = ["Map"]
@@ -273,8 +274,6 @@ class Map:
         """Give each point ``ids`` its most central observed descriptor: the one with the least
         median Hamming distance to the point's other observations (ORB-SLAM Sec. III-C,
         ``ComputeDistinctiveDescriptors``). Vectorised over all pairs of a point's observations."""
-        from ..features.matching import hamming_pairs
-
         ids = np.asarray(ids, np.int64).reshape(-1)
         kf, pt, kp = self.observations_of(ids)
         if len(pt) == 0:

@@ -19,7 +19,7 @@ keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -35,6 +35,7 @@ from .keyframe_database import KeyframeDatabase, static_bow
 from .local_mapping import LocalMapper, create_points_from_depth
 from .map import Map
 from .tracking import Tracker, TrackState
+from .vocabulary import default_vocabulary
 
 __all__ = ["System", "FrameResult"]
 
@@ -96,36 +97,35 @@ class System:
     ----------
     camera : intrinsics of the sequence.
     config : the root :class:`dynslam_lab.config.Config` (uses ``orb``, ``tracking``,
-        ``local_mapping``).
+        ``local_mapping``; the other stages are built from it by
+        :func:`dynslam_lab.pipeline.build_pipeline`).
     detector : object with ``detect(frame) -> Detections``, or None.
     screener : object with ``screen(frame, uv, detections) -> table`` (``.dynamic (N,)`` bool,
         ``.region_mask``), or None (all keypoints static).
-    loop_closer : object with ``on_keyframe(keyframe, map) -> result | None``, or None. When it
-        has a ``database`` (keyframe BoW index) and a ``vocabulary``, relocalisation queries them.
+    loop_closer : a :class:`~dynslam_lab.slam.loop_closing.LoopCloser`, or None; relocalisation
+        queries its keyframe database (else the system keeps its own).
     """
 
-    def __init__(self, camera: PinholeCamera, config=None, detector=None, screener=None, loop_closer=None) -> None:
-        if config is None:
-            from ..config import Config
-
-            config = Config()
+    def __init__(self, camera: PinholeCamera, config, detector=None, screener=None, loop_closer=None) -> None:
+        if loop_closer is not None and loop_closer.bf != config.tracking.bf:
+            raise ValueError(f"System: the loop closer's bf ({loop_closer.bf}) differs from tracking.bf "
+                             f"({config.tracking.bf}); build both from one config (dynslam_lab.pipeline.build_pipeline)")
         self.camera = camera
         self.config = config
         self.detector = detector
         self.screener = screener
         self.loop_closer = loop_closer
+        #: how the stages were chosen (detector spec, filter name, loop closing), for summaries
+        self.description: dict[str, Any] = {}
         orb = config.orb
         self.map = Map(orb.scale_factor, orb.n_levels)
         self.tracker = Tracker(camera, self.map, config.tracking, orb.scale_factor)
         # Relocalisation queries the loop closer's keyframe database (ORB-SLAM2 shares one
-        # database between tracking and loop closing); without one it falls back to brute force.
-        db, voc = getattr(loop_closer, "database", None), getattr(loop_closer, "vocabulary", None)
+        # database between tracking and loop closing); without one the system keeps its own.
         self._own_database = None  # the system's BoW index when no loop closer keeps one
-        if db is not None and voc is not None and getattr(getattr(loop_closer, "config", None), "enabled", True):
-            self.tracker.database, self.tracker.vocabulary = db, voc
+        if loop_closer is not None and loop_closer.config.enabled:
+            self.tracker.database, self.tracker.vocabulary = loop_closer.database, loop_closer.vocabulary
         elif config.tracking.bow_relocalisation:
-            from .vocabulary import default_vocabulary
-
             voc = default_vocabulary()
             self._own_database = KeyframeDatabase(voc.n_words)
             self.tracker.database, self.tracker.vocabulary = self._own_database, voc
@@ -137,6 +137,19 @@ class System:
         self.lost_frames: list[int] = []
         self.loop_results: list[Any] = []
         self.loop_edges: list[tuple[int, int]] = []
+
+    def effective_config(self):
+        """The configuration every stage actually runs with: :attr:`config` with the detection,
+        screening and loop-closing sections taken from the stage objects themselves (what
+        ``summary.json`` records, so a hand-built stage cannot be misreported)."""
+        changes = {}
+        if self.detector is not None:
+            changes["detection"] = self.detector.config
+        if self.screener is not None:
+            changes["screening"] = self.screener.config
+        if self.loop_closer is not None:
+            changes["loop_closing"] = self.loop_closer.config
+        return replace(self.config, **changes)
 
     # --------------------------------------------------------------- helpers
     def _screen(self, frame: Frame, feats: Features, t: dict) -> tuple[np.ndarray, Any, Any]:

@@ -32,7 +32,7 @@ would expose the scene to the network).
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import socket
 import threading
 import time
@@ -42,8 +42,12 @@ from typing import Callable
 
 import numpy as np
 
+from ..evaluation.ate import align_trajectory
+from ..evaluation.sync import associate_trajectories
 from ..evaluation.trajectory import Trajectory, read_tum_trajectory
 from ..geometry.se3 import matrix_to_quat_xyzw
+from ..mapping.ply import read_ply
+from ..runs.layout import read_run
 
 __all__ = [
     "SceneConfig",
@@ -83,7 +87,7 @@ class SceneConfig:
     trajectory_thickness: float = 3.0  # screen pixels of trajectory lines (ours)
     point_size_sparse: float = 0.02  # metres (ours)
     point_size_dense: float = 0.012  # metres (ours; ~ the dense map's 2 cm voxels)
-    max_dense_points: int = 1_000_000  # dense points sent at most, random subset with seed 0 (ours)
+    max_dense_points: int = 1_000_000  # dense points sent at most, random subset with seed=0 (ours)
     max_image_frustums: int = 40  # keyframes shown with their thumbnail at start-up (ours)
     defer_layers: float = 2.0  # seconds after the first browser connects before keyframes and sparse map are sent (ours)
     defer_dense: float = 2.0  # seconds after those before the dense map is sent (ours; both 0 = all at once)
@@ -147,26 +151,13 @@ class RunData:
 
     def load_dense(self) -> None:
         """Read ``map.ply`` now if it was left on disk (no-op otherwise)."""
-        from ..mapping.ply import read_ply
-
         if self.dense_xyz is None and self.dense_path is not None:
             self.dense_xyz, self.dense_rgb = read_ply(self.dense_path)
 
 
 # ---------------------------------------------------------------------------- loading
-def _load_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray] | None:
-    if not path.is_file():
-        return None
-    with np.load(path) as z:
-        data = {k: z[k] for k in z.files}
-    missing = [k for k in required if k not in data]
-    if missing:
-        raise ValueError(f"{path}: missing arrays {missing} (has {sorted(data)})")
-    return data
-
-
 def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = None, dense: bool = True) -> RunData:
-    """Read a ``dynslam run`` output folder (layout in ``docs/architecture.md``).
+    """Read a run folder (:func:`dynslam_lab.runs.read_run`) for the viewer.
 
     Parameters
     ----------
@@ -180,68 +171,39 @@ def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = 
         :meth:`RunData.load_dense` (False: what ``dynslam view`` does, so that the server
         starts before a large map is read).
     """
-    from ..mapping.ply import read_ply, read_ply_header
-
-    outdir = Path(outdir)
-    if not outdir.is_dir():
-        raise FileNotFoundError(f"{outdir}: run folder not found")
-    run = RunData(outdir=outdir)
-    summary_path = outdir / "summary.json"
-    if summary_path.is_file():
-        try:
-            run.summary = json.loads(summary_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{summary_path}: invalid JSON ({exc})") from exc
-    if (outdir / "trajectory.txt").is_file():
-        run.trajectory = read_tum_trajectory(outdir / "trajectory.txt")
-    kf = _load_npz(outdir / "keyframes.npz", ("ids", "frame_index", "poses"))
+    contents = read_run(outdir)
+    if contents.empty:
+        raise FileNotFoundError(
+            f"{contents.outdir}: nothing to show (no trajectory.txt, keyframes.npz, map_points.npz or map.ply)"
+        )
+    run = RunData(outdir=contents.outdir, summary=contents.summary, trajectory=contents.trajectory,
+                  dense_path=contents.dense_path, dense_count=contents.dense_count, thumbs=contents.thumbs)
+    kf = contents.keyframes
     if kf is not None:
         K = len(kf["ids"])
-        if kf["poses"].shape != (K, 4, 4):
-            raise ValueError(f"{outdir / 'keyframes.npz'}: poses must be ({K}, 4, 4), got {kf['poses'].shape}")
         run.kf_ids = kf["ids"].astype(np.int64)
         run.kf_frame_index = kf["frame_index"].astype(np.int64)
         run.kf_poses = kf["poses"].astype(np.float64)
         if "timestamps" in kf and kf["timestamps"].shape == (K,):
             run.kf_timestamps = kf["timestamps"].astype(np.float64)
-        run.loop_edges = kf.get("loop_edges", np.zeros((0, 2), np.int64)).reshape(-1, 2).astype(np.int64)
-    mp = _load_npz(outdir / "map_points.npz", ("xyz",))
-    if mp is not None:
-        run.map_xyz = mp["xyz"].reshape(-1, 3).astype(np.float64)
-        run.map_rgb = mp["rgb"].reshape(-1, 3).astype(np.uint8) if "rgb" in mp else None
-    dp = _load_npz(outdir / "dynamic_points.npz", ("xyz",))
-    if dp is not None:
-        run.dynamic_xyz = dp["xyz"].reshape(-1, 3).astype(np.float64)
-    if (outdir / "map.ply").is_file():
-        run.dense_path = outdir / "map.ply"
-        if dense:
-            run.dense_xyz, run.dense_rgb = read_ply(run.dense_path)
-            run.dense_count = len(run.dense_xyz)
-        else:
-            run.dense_count = read_ply_header(run.dense_path).n_vertex
-    thumbs_dir = outdir / "thumbs"
-    if thumbs_dir.is_dir():
-        for p in thumbs_dir.glob("*.jpg"):
-            if p.stem.isdigit():
-                run.thumbs[int(p.stem)] = p
-    if all(x is None for x in (run.trajectory, run.kf_poses, run.map_xyz, run.dense_path)):
-        raise FileNotFoundError(
-            f"{outdir}: nothing to show (no trajectory.txt, keyframes.npz, map_points.npz or map.ply)"
-        )
-    gt = _find_ground_truth(outdir, run.summary, ground_truth)
+        run.loop_edges = kf["loop_edges"].astype(np.int64)
+    if contents.map_points is not None:
+        run.map_xyz = contents.map_points["xyz"].astype(np.float64)
+        rgb = contents.map_points.get("rgb")
+        run.map_rgb = rgb.reshape(-1, 3).astype(np.uint8) if rgb is not None else None
+    if contents.dynamic_points is not None:
+        run.dynamic_xyz = contents.dynamic_points["xyz"].astype(np.float64)
+    if dense and run.dense_path is not None:
+        run.load_dense()
+    gt = _find_ground_truth(run.outdir, run.summary, ground_truth)
     if gt is not None and run.trajectory is not None:
-        from ..evaluation.ate import align_trajectory
-        from ..evaluation.sync import associate_trajectories
-
         gt_a, est_a = associate_trajectories(gt, run.trajectory)
         if len(gt_a) >= 3:
             _, a = align_trajectory(est_a, gt_a, "se3")  # S maps estimate -> ground truth
             S = np.eye(4)
             S[:3, :3], S[:3, 3] = a.R, a.t
             gt = gt.transformed(np.linalg.inv(S))
-        run.ground_truth = gt
-    elif gt is not None:
-        run.ground_truth = gt
+    run.ground_truth = gt
     return run
 
 
@@ -699,8 +661,6 @@ def show_inline(run: RunData | str | Path, height: int = 500, config: SceneConfi
     HTML; ipywidgets (not viser's GUI) own the parameters in notebooks. Returns the server
     (stopped: the embedded page needs no live connection).
     """
-    import dataclasses
-
     config = dataclasses.replace(config or SceneConfig(), gui=False)
     server, handles = start_viewer(run, config=config)
     server.scene.show(height=height)

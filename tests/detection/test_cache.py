@@ -9,9 +9,12 @@ from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.datasets.frame import Frame
 from dynslam_lab.detection import Detections, build_detector, load_detections, save_detections
 from dynslam_lab.detection.cache import CacheDetector
+from dynslam_lab.detection.config import DetectionConfig
 
 
 class CountingDetector:
+    config = DetectionConfig(score_threshold=0.3)
+
     def __init__(self):
         self.calls = 0
 

@@ -1,4 +1,4 @@
-"""COCO classes and the motion-prior tables of seeds 002, 003 and 004."""
+"""COCO classes and the motion-prior tables of Zhang et al. 2023, Chang et al. 2021 and Ge et al. 2024."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def test_coco_classes_match_the_ultralytics_export_order():
 
 
 def test_apriori_dynamic_set_is_chang_2021():
-    # seed 003 Sec. III-A lists 19 labels: people, vehicles and animals
+    # Chang et al. 2021 Sec. III-A lists 19 labels: people, vehicles and animals
     assert len(APRIORI_DYNAMIC) == 19 and set(APRIORI_DYNAMIC) <= set(COCO_CLASSES)
     flags = is_apriori_dynamic(np.array([0, 2, 15, 56, 62, -1, 200]))
     np.testing.assert_array_equal(flags, [True, True, True, False, False, False, False])

@@ -72,7 +72,7 @@ def test_soft_nms_hand_case():
     # box 1 overlaps box 0 by IoU 0.5: 0.8 exp(-0.25 / 0.5) = 0.485 < 0.5 -> ranked last
     assert keep.tolist() == [0, 2, 1]
     np.testing.assert_allclose(s, [0.9, 0.5, 0.8 * np.exp(-0.5)])
-    # hard NMS at N_t = 0.5 removes it (IoU >= N_t, seed 002 eq. 5)
+    # hard NMS at N_t = 0.5 removes it (IoU >= N_t, Zhang et al. 2023 eq. 5)
     assert nms(boxes, [0.9, 0.8, 0.5], 0.5).tolist() == [0, 2]
 
 

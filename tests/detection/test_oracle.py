@@ -92,7 +92,7 @@ def test_class_filter_and_missing_mask_error():
 
 
 def test_oracle_on_the_synthetic_renderer():
-    synthetic = pytest.importorskip("dynslam_lab.datasets.synthetic", reason="renderer not in the tree yet")
+    from dynslam_lab.datasets import synthetic
     from dynslam_lab.datasets import TumSequence
 
     seq = TumSequence(synthetic.synthetic_sequence("walking_xyz", n_frames=3, seed=0))

@@ -9,12 +9,11 @@ import pandas as pd
 import pytest
 
 from dynslam_lab.cli import main
+from dynslam_lab.datasets.synthetic import synthetic_sequence
 
 
 @pytest.mark.slow
 def test_demo_writes_the_ablation_table(tmp_path, capsys):
-    pytest.importorskip("dynslam_lab.datasets.synthetic")
-    pytest.importorskip("dynslam_lab.slam.runner")
     out = tmp_path / "demo"
     assert main(["demo", "--frames", "30", "--out", str(out), "--quiet"]) == 0
     df = pd.read_csv(out / "ablation.csv")
@@ -40,8 +39,7 @@ def test_demo_writes_the_ablation_table(tmp_path, capsys):
 
 
 def test_ablation_needs_a_detector_without_synthetic_masks(tmp_path, capsys):
-    synthetic = pytest.importorskip("dynslam_lab.datasets.synthetic")
-    src = synthetic.synthetic_sequence("walking_xyz", n_frames=30, seed=0)
+    src = synthetic_sequence("walking_xyz", n_frames=30, seed=0)
     seq = tmp_path / "plain"
     shutil.copytree(src, seq, ignore=shutil.ignore_patterns("masks", "moving.txt", "instances.json"))
     assert main(["ablation", str(seq), "--out", str(tmp_path / "a"), "--filters", "none;semantic", "--quiet"]) == 1

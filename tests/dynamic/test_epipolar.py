@@ -1,4 +1,4 @@
-"""Epipolar check (seed 002 eqs. 16-17, seed 004 Sec. 2.3) against OpenCV and known motion."""
+"""Epipolar check (Zhang et al. 2023 eqs. 16-17, Ge et al. 2024 Sec. 2.3) against OpenCV and known motion."""
 
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ def test_static_points_lie_on_their_epipolar_lines_for_the_true_F():
     R, t = T[:3, :3], T[:3, 3]
     tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
     K = CAM.K
-    F = np.linalg.inv(K).T @ tx @ R @ np.linalg.inv(K)  # seed 002 eq. 15
+    F = np.linalg.inv(K).T @ tx @ R @ np.linalg.inv(K)  # Zhang et al. 2023 eq. 15
     d = epipolar_distance(F, uv0, uv1)
     assert np.all(d[~moving] < 1e-6)
     assert np.median(d[moving]) > 1.0

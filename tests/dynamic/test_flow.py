@@ -1,4 +1,4 @@
-"""Adaptive-threshold dense flow (seed 003 eq. 3, Fig. 5)."""
+"""Adaptive-threshold dense flow (Chang et al. 2021 eq. 3, Fig. 5)."""
 
 from __future__ import annotations
 

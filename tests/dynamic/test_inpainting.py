@@ -1,4 +1,4 @@
-"""Background inpainting by eq. 4 of seed 003 on a scene whose hidden background is known."""
+"""Background inpainting by eq. 4 of Chang et al. 2021 on a scene whose hidden background is known."""
 
 from __future__ import annotations
 

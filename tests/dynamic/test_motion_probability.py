@@ -1,11 +1,11 @@
-"""Motion-probability restoration (ASG-SLAM eq. 3) and seed 002's rule, by hand."""
+"""Motion-probability restoration (ASG-SLAM eq. 3) and Zhang et al.'s rule, by hand."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from dynslam_lab.dynamic.geometric_rule import seed002_verdict
+from dynslam_lab.dynamic.geometric_rule import level_rule_verdict
 from dynslam_lab.dynamic.motion_probability import RestorationConfig, restore_by_motion_probability, static_ratio
 
 
@@ -44,9 +44,9 @@ def test_geometric_evidence_is_never_restored_and_enough_static_restores_nothing
         restore_by_motion_probability(dynamic, dynamic, prob[:2])
 
 
-def test_seed002_rule():
+def test_level_rule():
     level = np.array([3, 2, 1, 1, 0, 0])  # high, medium, low, low, none, none
     geometric = np.array([0, 0, 1, 0, 1, 0], bool)
-    assert seed002_verdict(level, geometric).tolist() == [True, True, True, False, True, False]
+    assert level_rule_verdict(level, geometric).tolist() == [True, True, True, False, True, False]
     with pytest.raises(ValueError, match="level codes"):
-        seed002_verdict(np.array([4]), np.array([False]))
+        level_rule_verdict(np.array([4]), np.array([False]))

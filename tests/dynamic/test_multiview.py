@@ -1,4 +1,4 @@
-"""Multi-view RGB-D check (seed 003 eq. 2): rough PnP pose and the 4 px / 0.1 m test."""
+"""Multi-view RGB-D check (Chang et al. 2021 eq. 2): rough PnP pose and the 4 px / 0.1 m test."""
 
 from __future__ import annotations
 

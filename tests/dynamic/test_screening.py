@@ -113,9 +113,9 @@ def test_config_tree_takes_toml_style_overrides():
     from dynslam_lab.config import config_to_dict, with_overrides
 
     cfg = with_overrides(ScreeningConfig(), {"depth_ransac": {"var_threshold": 1.0}, "multiview": {"depth_m": 0.2},
-                                             "full_stages": ["semantic", "epipolar", "seed002"]})
+                                             "full_stages": ["semantic", "epipolar", "level_rule"]})
     assert cfg.depth_ransac.var_threshold == 1.0 and cfg.multiview.depth_m == 0.2
-    assert parse_filters("full", cfg) == ("semantic", "epipolar", "seed002")
+    assert parse_filters("full", cfg) == ("semantic", "epipolar", "level_rule")
     d = config_to_dict(cfg)
     assert d["epipolar"]["threshold_px"] == 1.0 and d["flow"]["factor"] == 2.0
     with pytest.raises(ValueError, match="screening.depth_ransac.nthre"):

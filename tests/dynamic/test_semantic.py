@@ -24,7 +24,7 @@ def test_masks_classes_and_prior_sets():
     r = semantic_prior(uv, _dets(), SemanticConfig())
     assert r.instance.tolist() == [0, -1, 1, -1]
     assert r.class_id.tolist() == [0, -1, 56, -1]
-    assert r.flagged.tolist() == [True, False, False, False]  # chair is not a-priori dynamic (seed 003)
+    assert r.flagged.tolist() == [True, False, False, False]  # chair is not a-priori dynamic (Chang et al. 2021)
     assert r.motion_prob[0] > r.motion_prob[2] > 0 and r.motion_prob[3] == 0
     boxes = semantic_prior(uv, _dets(), SemanticConfig(use_masks=False))
     assert boxes.flagged.tolist() == [True, True, False, False]

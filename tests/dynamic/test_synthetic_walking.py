@@ -9,7 +9,7 @@ N_FRAMES = 30
 
 @pytest.fixture(scope="module")
 def walking():
-    synthetic = pytest.importorskip("dynslam_lab.datasets.synthetic")
+    from dynslam_lab.datasets import synthetic
     from dynslam_lab.datasets.tum import TumSequence
     from dynslam_lab.detection import build_detector
     from dynslam_lab.features.orb import extract_features

@@ -141,12 +141,12 @@ def test_bad_inputs_are_named(tmp_path, board_sequence):
 
 
 # ----------------------------------------------------------------- synthetic walking preset
-N_SYN = 30  # walking_xyz, 30 frames, seed 0: the sequence notebooks 01 and 04 also render (cached)
+N_SYN = 30  # walking_xyz, 30 frames, seed=0: the sequence notebooks 01 and 04 also render (cached)
 
 
 @pytest.fixture(scope="module")
 def walking():
-    synthetic = pytest.importorskip("dynslam_lab.datasets.synthetic")
+    from dynslam_lab.datasets import synthetic
     root = synthetic.synthetic_sequence("walking_xyz", N_SYN, 0)
     seq = TumSequence(root)
     movers = synthetic.moving_instances(root)

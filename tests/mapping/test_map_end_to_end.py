@@ -22,7 +22,7 @@ N_FRAMES = 120  # the sequence `dynslam demo` renders (cached)
 
 @pytest.mark.slow
 def test_dynslam_run_map_of_walking_preset_meets_targets(tmp_path):
-    synthetic = pytest.importorskip("dynslam_lab.datasets.synthetic")
+    from dynslam_lab.datasets import synthetic
     from dynslam_lab.cli import main
 
     root = synthetic.synthetic_sequence("walking_xyz", N_FRAMES, 0)

@@ -14,7 +14,6 @@ from dynslam_lab.slam.loop_closing import (
     LoopClosingConfig,
     LoopCloser,
     consistent_candidates,
-    intrinsics_from_keyframe,
     match_points_3d,
     refine_loop_pose,
     verify_loop,
@@ -24,6 +23,8 @@ from dynslam_lab.slam.vocabulary import VocabularyConfig, train_vocabulary
 
 FX = FY = 525.0
 CX, CY = 319.5, 239.5
+CAM = PinholeCamera(FX, FY, CX, CY)
+BF = 40.0  # virtual stereo baseline x fx (px m), the tracking default
 
 
 def flip_bits(desc: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -143,7 +144,7 @@ def test_refine_loop_pose_recovers_pose_from_noisy_depth():
                   descriptors=flip_bits(desc, 4, rng), octave=np.zeros(n, np.int64), angle=np.zeros(n), points_c=pts,
                   map_point_ids=np.full(n, -1, np.int64), static=np.ones(n, bool))
     T_start = make_pose(so3_exp([0.0, np.radians(0.5), 0.0]), [0.02, 0.0, 0.0]) @ se3_inv(T_w_q)
-    T_q_w, ip, ik = refine_loop_pose(kf, mp, pids, T_start, LoopClosingConfig())
+    T_q_w, ip, ik = refine_loop_pose(kf, mp, pids, T_start, LoopClosingConfig(), CAM, BF)
     err = relative_pose(se3_inv(T_w_q), T_q_w)
     assert np.linalg.norm(err[:3, 3]) < 0.002 and np.degrees(np.linalg.norm(so3_log(err[:3, :3]))) < 0.05
     assert len(ip) > 0.9 * n and np.array_equal(ip, ik)  # keypoint i sees point i
@@ -152,7 +153,7 @@ def test_refine_loop_pose_recovers_pose_from_noisy_depth():
     err_fit = relative_pose(se3_inv(T_w_q), T_fit)
     assert np.linalg.norm(err_fit[:3, 3]) > np.linalg.norm(err[:3, 3])
     # no refinement: the starting pose comes back
-    T0, _, _ = refine_loop_pose(kf, mp, pids, T_start, LoopClosingConfig(refine_rounds=0))
+    T0, _, _ = refine_loop_pose(kf, mp, pids, T_start, LoopClosingConfig(refine_rounds=0), CAM, BF)
     np.testing.assert_array_equal(T0, T_start)
     with pytest.raises(ValueError, match="refine_rounds"):
         LoopClosingConfig(refine_rounds=-1)
@@ -197,7 +198,7 @@ def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, see
     T_gt = np.stack([_look_out(a, 1.0) for a in np.radians(np.linspace(0, total_angle_deg, n_kf))])
     T_est = drifted(T_gt, seed)
     mp = Map()
-    closer = LoopCloser(config, vocabulary=voc)
+    closer = LoopCloser(config, CAM, BF, vocabulary=voc)
     lm_point: dict[int, tuple[int, int]] = {}  # landmark -> (map point id, last keyframe seen)
     results = []
     for k in range(n_kf):
@@ -277,18 +278,6 @@ def test_no_loop_without_revisit_even_with_dynamic_clutter():
     assert len(closer.database) == len(mp.keyframes)
 
 
-def test_intrinsics_recovered_from_backprojection():
-    cam = PinholeCamera(517.3, 516.5, 318.6, 255.3)
-    rng = np.random.default_rng(7)
-    uv = rng.uniform([0, 0], [640, 480], (50, 2))
-    z = rng.uniform(0.5, 4.0, 50)
-    z[:5] = np.nan
-    pts = cam.backproject(uv, z)
-    np.testing.assert_allclose(intrinsics_from_keyframe(uv, pts), (517.3, 516.5, 318.6, 255.3), rtol=1e-9)
-    with pytest.raises(ValueError, match="fewer than 3"):
-        intrinsics_from_keyframe(uv[:7], pts[:7])
-
-
 def test_config_errors():
     with pytest.raises(ValueError, match="match_ratio"):
         LoopClosingConfig(match_ratio=1.5)
@@ -306,7 +295,7 @@ def test_only_static_keypoints_feed_the_database():
     kf = KeyFrame(id=0, frame_index=0, timestamp=0.0, _T_w_c=np.eye(4), uv=np.zeros((400, 2)), descriptors=desc,
                   octave=np.zeros(400, np.int64), angle=np.zeros(400), points_c=np.ones((400, 3)),
                   map_point_ids=np.full(400, -1, np.int64), static=static)
-    closer = LoopCloser(LoopClosingConfig(), vocabulary=voc)
+    closer = LoopCloser(LoopClosingConfig(), CAM, BF, vocabulary=voc)
     b = closer.keyframe_bow(kf)
     ref = voc.bow(desc[static])
     np.testing.assert_array_equal(b.words, ref.words)
@@ -314,5 +303,5 @@ def test_only_static_keypoints_feed_the_database():
     mp = Map()
     mp.add_keyframe(kf)
     assert closer.on_keyframe(kf, mp) is None and 0 in closer.database
-    off = LoopCloser(LoopClosingConfig(enabled=False), vocabulary=voc)
+    off = LoopCloser(LoopClosingConfig(enabled=False), CAM, BF, vocabulary=voc)
     assert off.on_keyframe(kf, mp) is None and len(off.database) == 0

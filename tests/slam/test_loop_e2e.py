@@ -18,11 +18,10 @@ from dynslam_lab.datasets.tum import TumSequence
 from dynslam_lab.evaluation import compute_ate
 from dynslam_lab.features.orb import extract_features
 from dynslam_lab.geometry.se3 import se3_inv
+from dynslam_lab.pipeline import build_pipeline
 from dynslam_lab.slam.frame import make_slam_frame
-from dynslam_lab.slam.loop_closing import LoopCloser
-from dynslam_lab.slam.runner import blas_single_thread
-from dynslam_lab.slam.system import System
 from dynslam_lab.slam.tracking import Tracker, TrackState
+from dynslam_lab.threads import blas_single_thread
 
 pytestmark = pytest.mark.slow
 
@@ -37,9 +36,8 @@ def _sequence(preset: str, n: int) -> TumSequence:
 
 def _run(seq: TumSequence, loop: bool, n: int | None = None):
     """The system over the first ``n`` frames; returns ``(system, loop closer or None)``."""
-    config = Config()
-    closer = LoopCloser(config.loop_closing) if loop else None
-    system = System(seq.camera, config, loop_closer=closer)
+    system = build_pipeline(Config(), seq.camera, loop_closing=loop)
+    closer = system.loop_closer
     with blas_single_thread():
         for i in range(len(seq) if n is None else n):
             system.process(seq[i])

@@ -13,7 +13,9 @@ from dynslam_lab.cli import main
 from dynslam_lab.config import Config
 from dynslam_lab.datasets.tum import TumSequence
 from dynslam_lab.evaluation.trajectory import Trajectory, read_tum_trajectory, write_tum_trajectory
-from dynslam_lab.slam.runner import run_sequence
+from dynslam_lab.pipeline import build_pipeline
+from dynslam_lab.runs import run_sequence
+from dynslam_lab.slam.system import System
 from tests.slam import scene
 
 
@@ -42,7 +44,7 @@ def seqdir(tmp_path_factory):
 def test_run_sequence_writes_layout_and_survives_a_bad_frame(seqdir, tmp_path):
     seq = TumSequence(seqdir, camera="default")
     out = tmp_path / "run"
-    summary = run_sequence(seq, out, Config(), progress=False, flush_every=5)
+    summary = run_sequence(seq, out, build_pipeline(Config(), seq.camera), progress=False, flush_every=5)
     for name in ("trajectory.txt", "timing.csv", "summary.json", "keyframes.npz", "map_points.npz", "dynamic_points.npz"):
         assert (out / name).is_file(), name
     assert summary["frames"] == 24 and summary["processed"] == 24 and summary["complete"]
@@ -64,6 +66,7 @@ def test_run_sequence_writes_layout_and_survives_a_bad_frame(seqdir, tmp_path):
     assert cv2.imread(str(out / "thumbs" / "0.jpg")).shape == (120, 160, 3)
     saved = json.loads((out / "summary.json").read_text())
     assert saved["lost_frames"] == [12] and saved["config"]["orb"]["n_features"] == 1000
+    assert saved["schema_version"] == 1 and saved["pipeline"] == {"detector": "none", "filters": "none", "loop_closing": True}
 
 
 def test_cli_run_with_toml_override_and_errors(seqdir, tmp_path, capsys):
@@ -101,6 +104,8 @@ class _StubScreener:
 
             return pd.DataFrame({"u": self.uv[:, 0], "v": self.uv[:, 1], "dynamic": self.dynamic})
 
+    config = Config().screening
+
     def reset(self):
         type(self).resets += 1
 
@@ -113,7 +118,7 @@ def test_run_sequence_with_screener_saves_labels_and_dynamic_points(seqdir, tmp_
 
     seq = TumSequence(seqdir, camera="default", max_frames=8)
     out = tmp_path / "dyn"
-    summary = run_sequence(seq, out, Config(), screener=_StubScreener(), progress=False, save_labels=True)
+    summary = run_sequence(seq, out, System(seq.camera, Config(), screener=_StubScreener()), progress=False, save_labels=True)
     assert _StubScreener.resets == 1 and summary["tracked"] == 8
     labels = sorted((out / "labels").glob("*.csv"))
     assert [p.stem for p in labels] == [f"{i:06d}" for i in range(8)]

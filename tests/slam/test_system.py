@@ -78,7 +78,11 @@ def test_trajectory_follows_keyframe_corrections():
 
 
 class _FakeLoop:
-    """Loop closer stand-in: claims a loop on keyframe 1, raises on keyframe 2."""
+    """Loop closer stand-in: claims a loop on keyframe 1, raises on keyframe 2 (no database: the
+    system keeps its own for relocalisation)."""
+
+    bf = Config().tracking.bf
+    config = dataclasses.replace(Config().loop_closing, enabled=False)
 
     def __init__(self):
         self.seen = []

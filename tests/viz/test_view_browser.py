@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pytest
 
-from dynslam_lab.viz.browser import HeadlessChromium, colour_pixels, find_chromium
-from dynslam_lab.viz.demo_run import write_demo_run
+from tests.fixtures.browser import HeadlessChromium, colour_pixels, find_chromium
+from tests.fixtures.demo_run import write_demo_run
 from dynslam_lab.viz.viser_scene import COLORS, free_port, initial_view, load_run
 
 WIN_W, WIN_H = 1000, 700

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dynslam_lab.geometry.se3 import make_pose, so3_exp
-from dynslam_lab.viz.demo_run import write_demo_run
+from tests.fixtures.demo_run import write_demo_run
 from dynslam_lab.viz.viser_scene import (
     SceneConfig,
     build_scene,
