@@ -171,11 +171,13 @@ def execute_run(task: RunTask, threads: int = 1) -> dict:
     try:
         _clear(run_dir)
         config = task.config()
-        # The worker's own package must name the run as the client did (same code, same defaults).
-        mine = run_id(run_inputs(task.sequence, task.filters, task.inputs["detector"], config, task.loop_closing))
+        # The worker must name the run as the client did: same package (version, defaults, renderer)
+        # and the same sequence files.
+        here = dataclasses.replace(task.sequence, identity=task.sequence.current_identity())
+        mine = run_id(run_inputs(here, task.filters, task.inputs["detector"], config, task.loop_closing))
         if mine != task.run_id:
-            raise RuntimeError(f"this worker's dynslam_lab names the run {mine}, the client {task.run_id}: the "
-                               "worker's package (version or defaults) differs from the client's")
+            raise RuntimeError(f"this worker names the run {mine}, the client {task.run_id}: the worker's dynslam_lab "
+                               "(version, defaults, renderer) or the sequence's files differ from the client's")
         if config.detection.num_threads == 0:  # the detector's threads: this worker's share (not in the hash)
             config = dataclasses.replace(config, detection=dataclasses.replace(config.detection, num_threads=int(threads)))
         with _thread_budget(threads):

@@ -209,6 +209,14 @@ class SequenceSpec:
     def synthetic(self) -> bool:
         return self.preset is not None
 
+    def current_identity(self) -> dict:
+        """The identity as this process computes it now (the renderer's cache key, or the folder's
+        listing files hashed); equal to :attr:`identity` unless the code or the files changed."""
+        if self.synthetic:
+            return {"kind": "synthetic", "preset": self.preset, "n_frames": self.n_frames, "seed": self.seed,
+                    "cache_key": cache_key(self.preset, self.n_frames, self.seed)}
+        return _folder_identity(Path(self.path), self.camera)
+
     def has_truth(self) -> bool:
         """Per-pixel truth (instance masks) exists: synthetic sequences, and folders with ``masks/``."""
         return self.synthetic or (Path(self.path) / "masks").is_dir()
@@ -259,9 +267,8 @@ def _parse_sequences(entries: Any, base: Path, where: str) -> list[SequenceSpec]
                 raise ValueError(f"{w} seeds: a seed appears twice in {seeds}")
             label = str(e.get("name", preset))
             for s in seeds:
-                ident = {"kind": "synthetic", "preset": preset, "n_frames": n, "seed": s,
-                         "cache_key": cache_key(preset, n, s)}
-                out.append(SequenceSpec(label, preset=preset, n_frames=n, seed=s, max_frames=max_frames, identity=ident))
+                seq = SequenceSpec(label, preset=preset, n_frames=n, seed=s, max_frames=max_frames)
+                out.append(dataclasses.replace(seq, identity=seq.current_identity()))
         else:
             for k in ("n_frames", "seed", "seeds"):
                 if k in e:
@@ -274,8 +281,8 @@ def _parse_sequences(entries: Any, base: Path, where: str) -> list[SequenceSpec]
             except (ValueError, FileNotFoundError) as exc:
                 raise ValueError(f"{w}: {exc}") from exc
             label = str(e.get("name", path.name))
-            out.append(SequenceSpec(label, path=str(path), camera=camera, max_frames=max_frames,
-                                    identity=_folder_identity(path, camera)))
+            seq = SequenceSpec(label, path=str(path), camera=camera, max_frames=max_frames)
+            out.append(dataclasses.replace(seq, identity=seq.current_identity()))
     folders = {}
     for s in out:
         key = s.path or s.preset
@@ -493,7 +500,7 @@ def parse_spec(data: dict, source: str = "<spec>", base: str | Path = ".") -> Sw
         raise ValueError(f"{source}: [sweep] loop_closing: expected true/false, got {loop!r}")
     sequences = _parse_sequences(data.get("sequences"), base, source)
     if max_frames is not None:
-        sequences = [s if s.max_frames is not None else dataclasses.replace(s, max_frames=max_frames, identity=s.identity)
+        sequences = [s if s.max_frames is not None else dataclasses.replace(s, max_frames=max_frames)
                      for s in sequences]
 
     config_table = data.get("config", {})

@@ -209,3 +209,36 @@ def test_killed_sweep_restarted_redoes_only_unfinished_runs(pool_sweep, tmp_path
     a = pd.read_csv(pool_sweep[1].out / "results.csv")
     b = pd.read_csv(out / "results.csv")
     pd.testing.assert_frame_equal(_comparable(a), _comparable(b))
+
+
+def test_worker_refuses_a_run_whose_inputs_changed(tmp_path):
+    """A worker names the run again from its own package and files; a sequence changed since the
+    sweep was planned (or a worker with other code) fails the run instead of mislabelling it."""
+    from dynslam_lab.experiments.sweep import execute_run
+
+    src = synthetic_sequence("walking_xyz", n_frames=8, seed=0)
+    seq_dir = tmp_path / "seq"
+    shutil.copytree(src, seq_dir)
+    (tmp_path / "s.toml").write_text(f"[sweep]\nfilters = ['none']\n[[sequences]]\npath = '{seq_dir}'\n")
+    (task,) = load_spec(tmp_path / "s.toml").tasks(tmp_path / "out")
+    with (seq_dir / "groundtruth.txt").open("a") as fh:
+        fh.write("# edited after planning\n")
+    record = execute_run(task)
+    assert record["status"] == "failed" and "the sequence's files differ" in record["error"]
+    assert not is_finished(task.run_dir) and not (Path(task.run_dir) / "summary.json").exists()
+
+
+def test_cli_dry_run_and_bad_spec(pool_sweep, tmp_path, capsys):
+    from dynslam_lab.cli import main
+
+    spec, report = pool_sweep
+    assert main(["sweep", spec.source, "--out", str(report.out), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == "4 runs, 4 finished, 0 to do"
+    assert sum(" done  walking_xyz seed " in line for line in lines) == 4
+    bad = tmp_path / "bad.toml"
+    bad.write_text(TINY.replace("threshold_px", "threshold"))
+    assert main(["sweep", str(bad), "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert "dynslam sweep: error:" in err and "screening.epipolar.threshold: unknown parameter" in err
+    assert not (tmp_path / "o").exists()  # nothing written for a bad spec
