@@ -230,7 +230,7 @@ def _cell(v: Any) -> Any:
 
 
 def _row(task: RunTask, out: Path) -> dict[str, Any]:
-    """The table row of one run, read from its folder (metrics NaN when it is not done)."""
+    """The table row of one run, read from its folder (no metrics unless it is done)."""
     seq = task.sequence
     run_dir = Path(task.run_dir)
     row: dict[str, Any] = {"run_id": task.run_id, "status": "pending", "error": "", "sequence": seq.label,
@@ -247,12 +247,11 @@ def _row(task: RunTask, out: Path) -> dict[str, Any]:
     if record:
         row["status"] = "done" if is_finished(run_dir) else "failed"
         row["error"] = record.get("error") or ("" if row["status"] == "done" else "run folder incomplete")
-    metrics = {k: v for k, v in summary.items() if k not in _NOT_METRICS}
-    row.update(_flatten(metrics))
-    if summary:
+    if row["status"] == "done":  # the metrics of a finished run only (a failed one may have left a partial summary)
+        row.update(_flatten({k: v for k, v in summary.items() if k not in _NOT_METRICS}))
         row["n_errors"] = len(summary.get("errors", []))
-    for k, v in (record.get("keypoints") or {}).items():
-        row[f"keypoints.{k}"] = math.nan if v is None else v
+        for k, v in (record.get("keypoints") or {}).items():
+            row[f"keypoints.{k}"] = math.nan if v is None else v
     row["run_dir"] = str(run_dir.relative_to(out)) if run_dir.is_relative_to(out) else str(run_dir)
     return row
 
@@ -494,8 +493,12 @@ def run_sweep(
 
         def done(task: RunTask, record: dict) -> None:
             nonlocal failed
-            rows[task.run_id] = _row(task, out)
-            if record.get("status") != "done" or rows[task.run_id]["status"] != "done":
+            row = rows[task.run_id] = _row(task, out)
+            if record.get("status") == "done" and row["status"] != "done":  # the worker wrote it elsewhere
+                row["status"] = "failed"
+                row["error"] = record["error"] = (f"run folder {task.run_dir} not found complete from here: with a Dask "
+                                                  "cluster, OUT must be on a filesystem every worker shares")
+            if row["status"] != "done":
                 failed += 1
                 log(f"sweep: run {task.run_id} ({task.sequence.label}, {task.filters}) failed: {record.get('error')}")
             bar.set_postfix(failed=failed, refresh=False)

@@ -54,7 +54,7 @@ from .. import __version__
 from ..config import Config, config_to_dict, with_overrides
 from ..datasets.synthetic import cache_key, get_preset
 from ..datasets.tum import TumSequence
-from ..dynamic.screening import FILTERS, parse_filters
+from ..dynamic.screening import parse_filters
 from ..pipeline import DETECTOR_STAGES
 
 if sys.version_info >= (3, 11):
@@ -474,18 +474,24 @@ def _as_list(value: Any, where: str) -> list[str]:
     return list(dict.fromkeys(v.strip() for v in value))
 
 
+def _section(data: dict, name: str, keys: tuple[str, ...], source: str) -> dict:
+    """The table ``[name]`` of the spec (empty when absent), with only ``keys`` allowed."""
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        raise ValueError(f"{source}: [{name}] must be a table")
+    unknown = [k for k in table if k not in keys]
+    if unknown:
+        raise ValueError(f"{source}: [{name}] unknown keys {unknown}; known: {list(keys)}")
+    return table
+
+
 def parse_spec(data: dict, source: str = "<spec>", base: str | Path = ".") -> SweepSpec:
     """Check a spec given as a dict (TOML tables) and return it; ``base`` resolves relative paths."""
     base = Path(base)
     unknown = [k for k in data if k not in _SECTIONS]
     if unknown:
         raise ValueError(f"{source}: unknown sections {unknown}; known: {list(_SECTIONS)}")
-    sweep = data.get("sweep", {})
-    if not isinstance(sweep, dict):
-        raise ValueError(f"{source}: [sweep] must be a table")
-    unknown = [k for k in sweep if k not in _SWEEP_KEYS]
-    if unknown:
-        raise ValueError(f"{source}: [sweep] unknown keys {unknown}; known: {list(_SWEEP_KEYS)}")
+    sweep = _section(data, "sweep", _SWEEP_KEYS, source)
     filters = [f.lower() for f in _as_list(sweep.get("filters", ["none"]), f"{source}: [sweep] filters")]
     for f in filters:
         try:
@@ -526,12 +532,7 @@ def parse_spec(data: dict, source: str = "<spec>", base: str | Path = ".") -> Sw
                 raise ValueError(f"{where} = {v!r}: {exc}") from exc
         grid.append((key, tuple(values)))
 
-    dask = data.get("dask", {})
-    if not isinstance(dask, dict):
-        raise ValueError(f"{source}: [dask] must be a table")
-    unknown = [k for k in dask if k not in _DASK_KEYS]
-    if unknown:
-        raise ValueError(f"{source}: [dask] unknown keys {unknown}; known: {list(_DASK_KEYS)}")
+    dask = _section(data, "dask", _DASK_KEYS, source)
     scheduler = dask.get("scheduler")
     if scheduler is not None and (not isinstance(scheduler, str) or "://" not in scheduler):
         raise ValueError(f"{source}: [dask] scheduler: expected an address like tcp://HOST:8786, got {scheduler!r}")

@@ -13,16 +13,16 @@ import time
 from pathlib import Path
 
 import cv2
-import numpy as np
 import pandas as pd
 import pytest
 
+from dynslam_lab.cli import main
 from dynslam_lab.config import Config, with_overrides
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.datasets.tum import TumSequence
 from dynslam_lab.evaluation.trajectory import read_tum_trajectory
 from dynslam_lab.experiments.scoring import KeypointScorer
-from dynslam_lab.experiments.sweep import RECORD, deterministic_columns, is_finished, run_sweep
+from dynslam_lab.experiments.sweep import RECORD, deterministic_columns, execute_run, is_finished, run_sweep
 from dynslam_lab.experiments.sweep_spec import load_spec
 from dynslam_lab.pipeline import build_pipeline
 from dynslam_lab.runs import run_sequence
@@ -214,8 +214,6 @@ def test_killed_sweep_restarted_redoes_only_unfinished_runs(pool_sweep, tmp_path
 def test_worker_refuses_a_run_whose_inputs_changed(tmp_path):
     """A worker names the run again from its own package and files; a sequence changed since the
     sweep was planned (or a worker with other code) fails the run instead of mislabelling it."""
-    from dynslam_lab.experiments.sweep import execute_run
-
     src = synthetic_sequence("walking_xyz", n_frames=8, seed=0)
     seq_dir = tmp_path / "seq"
     shutil.copytree(src, seq_dir)
@@ -229,8 +227,6 @@ def test_worker_refuses_a_run_whose_inputs_changed(tmp_path):
 
 
 def test_cli_dry_run_and_bad_spec(pool_sweep, tmp_path, capsys):
-    from dynslam_lab.cli import main
-
     spec, report = pool_sweep
     assert main(["sweep", spec.source, "--out", str(report.out), "--dry-run"]) == 0
     lines = capsys.readouterr().out.splitlines()

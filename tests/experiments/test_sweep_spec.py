@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from dynslam_lab import __version__
-from dynslam_lab.config import Config, config_to_dict
-from dynslam_lab.datasets.synthetic import cache_key
-from dynslam_lab.experiments.sweep_spec import expand_values, load_spec, parse_spec, run_id
+from dynslam_lab.config import config_to_dict
+from dynslam_lab.datasets.synthetic import cache_key, synthetic_sequence
+from dynslam_lab.experiments.sweep_spec import expand_values, load_spec, run_id
 
 BASE = """
 [sweep]
@@ -148,8 +148,6 @@ def test_run_id_is_the_hash_of_the_inputs(tmp_path):
 
 
 def test_folder_sequence_identity(tmp_path):
-    from dynslam_lab.datasets.synthetic import synthetic_sequence
-
     root = synthetic_sequence("walking_xyz", n_frames=8, seed=0)
     text = f"[sweep]\nfilters = ['geometry']\n[[sequences]]\npath = '{root}'\nname = 'wxyz'\n"
     spec = _spec(tmp_path, text)
