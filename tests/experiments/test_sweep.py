@@ -3,6 +3,7 @@ and a sweep killed mid-way and started again."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -118,9 +119,10 @@ def test_dask_local_cluster_gives_the_same_table(pool_sweep, tmp_path):
     distributed = pytest.importorskip("distributed")
     spec, report = pool_sweep
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
-        with distributed.Client(cluster) as client:
-            dask_report = run_sweep(spec, tmp_path / "dask", scheduler=client, progress=False, plots=False)
-    assert dask_report.engine.startswith("Dask cluster at")
+        # the address given as the spec's [dask] scheduler: the sweep connects its own client
+        dask_spec = dataclasses.replace(spec, scheduler=cluster.scheduler_address)
+        dask_report = run_sweep(dask_spec, tmp_path / "dask", progress=False, plots=False)
+    assert dask_report.engine == f"Dask cluster at {cluster.scheduler_address}"
     assert (dask_report.executed, dask_report.failed) == (4, 0)
     a = pd.read_csv(report.out / "results.csv")
     b = pd.read_csv(tmp_path / "dask" / "results.csv")
