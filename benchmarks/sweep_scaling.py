@@ -13,7 +13,8 @@ alternating). Prints one row per sweep: engine, wall seconds, CPU seconds of the
 over the median 1-worker wall time, and whether its table equals the first 1-worker table on
 every column that is not a timing. The target: 2 workers take about half the time of 1 on an
 idle 2-core machine. On a shared machine the ratio tells more than the seconds; the load average
-is printed with each row.
+is printed with each row, and ``others_cores``: the cores the machine's other processes kept busy
+on average during that sweep (from ``/proc/stat``): what was left for the sweep.
 """
 
 from __future__ import annotations
@@ -56,6 +57,16 @@ def _self_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _machine_busy() -> float:
+    """CPU seconds the whole machine has been busy (all processes, all cores; Linux /proc/stat)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:  # not Linux
+        return float("nan")
+    user, nice, system, idle, iowait, irq, softirq, steal = (int(v) for v in fields[:8])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=30, help="frames per sequence (default 30)")
@@ -80,7 +91,7 @@ def main() -> None:
         out = root / f"{i:02d}_{engine}{workers}"
         shutil.rmtree(out, ignore_errors=True)
         load = os.getloadavg()[0]
-        c0, s0 = _children_cpu(), _self_cpu()
+        c0, s0, m0 = _children_cpu(), _self_cpu(), _machine_busy()
         t0 = time.perf_counter()
         if engine == "pool":
             report = run_sweep(spec, out, workers=workers, progress=False, plots=False)
@@ -96,14 +107,16 @@ def main() -> None:
                 wall = time.perf_counter() - t0
             label = f"Dask LocalCluster, {workers} processes"
         cpu = (_children_cpu() - c0) + (_self_cpu() - s0)
+        others = (_machine_busy() - m0 - cpu) / wall
         table = pd.read_csv(out / "results.csv")
         cols = deterministic_columns(table)
         if reference is None:
             reference = table
         same = table[cols].reset_index(drop=True).equals(reference[cols].reset_index(drop=True))
         rows.append({"engine": label, "workers": workers, "wall_s": wall, "cpu_s": cpu, "failed": report.failed,
-                     "same_table": same, "load_1min": load})
-        print(f"  {label}: {wall:.1f} s wall, {cpu:.1f} s CPU, load {load:.1f}", flush=True)
+                     "same_table": same, "load_1min": load, "others_cores": others})
+        print(f"  {label}: {wall:.1f} s wall, {cpu:.1f} s CPU, load {load:.1f}, other processes used {others:.2f} cores",
+              flush=True)
     df = pd.DataFrame(rows)
     one = float(np.median(df.loc[(df["workers"] == 1), "wall_s"]))
     df["speed_up"] = one / df["wall_s"]
