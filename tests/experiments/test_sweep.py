@@ -28,22 +28,8 @@ from dynslam_lab.experiments.sweep_spec import load_spec
 from dynslam_lab.pipeline import build_pipeline
 from dynslam_lab.runs import run_sequence
 from tests.evaluation.evo_reference import evo_synced
+from tests.experiments.specs import TINY
 
-# The sweep of notebooks/11_sweeps.py uses these sequences too (one cache entry each).
-TINY = """
-[sweep]
-name = "tiny"
-filters = ["geometry"]
-loop_closing = false
-
-[[sequences]]
-preset = "walking_xyz"
-n_frames = 8
-seeds = [0, 1]
-
-[grid]
-"screening.epipolar.threshold_px" = [0.5, 2.0]
-"""
 THRESHOLD = "screening.epipolar.threshold_px"
 
 

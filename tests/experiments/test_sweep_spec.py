@@ -12,21 +12,9 @@ from dynslam_lab import __version__
 from dynslam_lab.config import config_to_dict
 from dynslam_lab.datasets.synthetic import cache_key, synthetic_sequence
 from dynslam_lab.experiments.sweep_spec import expand_values, load_spec, run_id
+from tests.experiments.specs import TINY
 
-BASE = """
-[sweep]
-filters = ["geometry", "full"]
-max_frames = 8
-loop_closing = false
-
-[[sequences]]
-preset = "walking_xyz"
-n_frames = 8
-seeds = [0, 1]
-
-[grid]
-"screening.epipolar.threshold_px" = [0.5, 2.0]
-"""
+BASE = TINY.replace('filters = ["geometry"]', 'filters = ["geometry", "full"]\nmax_frames = 8')
 
 
 def _spec(tmp_path, text=BASE, name="s.toml"):
