@@ -223,7 +223,7 @@ def bundle_adjust_map(mp: Map, kfs: dict[int, KeyFrame], fixed: set[int], pts: n
     """
     obs = gather_observations(kfs, o_kf, o_kp, bf, scale_factor)
     res = local_bundle_adjustment({k: f.T_c_w for k, f in kfs.items()}, fixed, mp.xyz[pts], o_kf,
-                                  np.searchsorted(pts, o_pt), obs, camera, bf, max_nfev=iterations)
+                                  np.searchsorted(pts, o_pt), obs, camera, bf, max_iterations=iterations)
     for k, f in kfs.items():
         if k not in fixed:
             f.set_pose(se3_inv(res.T_c_w[k]))
