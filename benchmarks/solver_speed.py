@@ -28,7 +28,7 @@ from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, transform_points
 from dynslam_lab.slam import optimize as opt
 from dynslam_lab.slam.pose_graph import PoseGraphConfig, edge_residuals, optimize_pose_graph
-from dynslam_lab.slam.runner import blas_single_thread
+from dynslam_lab.threads import blas_single_thread
 from dynslam_lab.slam.scipy_reference import (
     bundle_adjustment_least_squares,
     pose_graph_least_squares,

@@ -18,7 +18,7 @@ from dynslam_lab.slam.optimize import (
     optimize_pose,
     project_stereo,
 )
-from dynslam_lab.slam.runner import blas_single_thread
+from dynslam_lab.threads import blas_single_thread
 from dynslam_lab.slam.scipy_reference import bundle_adjustment_least_squares, pose_only_least_squares
 
 CAM = CAMERA_PRESETS["default"]
