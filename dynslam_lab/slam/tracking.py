@@ -99,6 +99,7 @@ class TrackingConfig:
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+    overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         for name in ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "suspect_translation",
@@ -107,6 +108,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.min_depth < self.max_depth:
             raise ValueError(f"TrackingConfig needs 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        if not isinstance(self.overlap_detection, bool):
+            raise ValueError(f"TrackingConfig.overlap_detection must be a bool, got {self.overlap_detection!r}")
         for name in ("flood_keyframes", "flood_window", "flood_min_gap", "kf_max_frames"):
             if getattr(self, name) < 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
