@@ -32,6 +32,7 @@ def main() -> None:
     ap.add_argument("--detector", default="none", help="detector spec (none, oracle, onnx:PATH)")
     ap.add_argument("--filters", default="none", help="dynamic filters (none, geometry, full, ...)")
     ap.add_argument("--no-overlap", action="store_true", help="detection after ORB, not beside it")
+    ap.add_argument("--detect-threads", type=int, default=None, help="onnxruntime intra-op threads (detection.num_threads)")
     args = ap.parse_args()
 
     from dataclasses import replace
@@ -52,6 +53,8 @@ def main() -> None:
         _ = f.gray  # colour conversion is the dataset's, not the tracker's
     cfg = Config()
     cfg = replace(cfg, tracking=replace(cfg.tracking, overlap_detection=not args.no_overlap))
+    if args.detect_threads is not None:
+        cfg = replace(cfg, detection=replace(cfg.detection, num_threads=args.detect_threads))
     system = build_pipeline(cfg, seq.camera, detector=args.detector, filters=args.filters, loop_closing=False)
     rows = []
     t0 = time.perf_counter()
@@ -64,7 +67,8 @@ def main() -> None:
     T = {s: np.array([r.get(s, 0.0) for r in rows]) for s in stages}
     tracking = T["orb"] + T["track"]
     kf = np.array([r["kf"] for r in rows])
-    print(f"detector: {args.detector}  filters: {args.filters}  overlap: {not args.no_overlap}")
+    print(f"detector: {args.detector}  filters: {args.filters}  overlap: {not args.no_overlap}  "
+          f"detection.num_threads: {cfg.detection.num_threads}")
     print(f"sequence: {seq.root.name}  frames: {len(rows)}  tracked: {sum(r['ok'] for r in rows)}  "
           f"keyframes made: {int(kf.sum())}  wall: {wall:.1f} s")
     print()
