@@ -5,8 +5,8 @@ a room ``[0, W] x [0, D] x [0, H]`` (world frame: z up, floor at z = 0, metres) 
 floor and ceiling carry textures of one *style*:
 
 * ``noise``: fine granite-like grain everywhere (dense, structureless texture);
-* ``flat``: plain paint with faint stains, skirting boards, a few framed pictures (large weakly
-  textured areas: few keypoints, most of them on the pictures and the room's edges);
+* ``flat``: plain paint with faint stains, skirting boards, a framed picture about every 2 m (large
+  weakly textured areas: few keypoints, most of them on the pictures and the room's edges);
 * ``pattern``: repeated patterns (bricks, tiles or a wallpaper motif on the walls, a checkerboard or
   plank floor): many keypoints with near-identical descriptors;
 * ``photo``: photographic prints edge to edge and hill-shaded relief murals
@@ -127,10 +127,11 @@ def _wall_surface(style: str, kind: str, w_m: float, h_m: float, base: np.ndarra
     if style == "flat":
         img = tx.paint_texture(H, W, rng, np.clip(base * rng.uniform(0.95, 1.1), 0, 1), amplitude=0.025)
         _skirting(img, rng)
-        for _ in range(int(rng.integers(1, 3))):  # a few framed pictures: the only texture on the wall
+        n = max(1, int(round(w_m / rng.uniform(1.5, 2.2))))
+        for k in range(n):  # framed pictures about every 2 m: the only texture on the wall
             pw, ph = int(rng.uniform(0.4, 0.8) * DENSITY), int(rng.uniform(0.5, 0.9) * DENSITY)
-            tx.paste(img, tx.poster(ph, pw, rng), int(rng.uniform(0.1, max(0.2, w_m - 0.9)) * DENSITY),
-                     int(rng.uniform(0.4, 0.8) * DENSITY))
+            x = (k + rng.uniform(0.2, 0.8)) * w_m / n - 0.5 * pw / DENSITY
+            tx.paste(img, tx.poster(ph, pw, rng), int(x * DENSITY), int(rng.uniform(0.4, 0.8) * DENSITY))
         return img
     if style == "pattern":
         if kind == "brick":
@@ -188,7 +189,7 @@ def room_lighting(kind: str, size, rng: np.random.Generator) -> Lighting:
     """Lights of a room of ``size = (W, D, H)`` m in a family:
 
     ``even`` (lamp 0.7, two fills 0.3/0.22, ambient 0.36: like the office), ``dim`` (everything at
-    ~45 %: dark, low-contrast images), ``lamp`` (one strong, low lamp and little else: strong
+    ~45 %: dark, low-contrast images), ``lamp`` (one strong, low lamp, a weak fill, ambient 0.15: strong
     gradients), ``bright`` (strong fills and ambient: washed out), ``window`` (one strong, nearly
     horizontal fill, as sun through a window, plus a weak lamp: walls facing away stay dark).
     """
@@ -205,7 +206,7 @@ def room_lighting(kind: str, size, rng: np.random.Generator) -> Lighting:
         return Lighting(lamp, 0.35, ((direction(0.5, 0.8), 0.12), (direction(0.5, 0.8), 0.08)), 0.16)
     if kind == "lamp":
         low = (lamp[0], lamp[1], float(H * rng.uniform(0.55, 0.75)))
-        return Lighting(low, 1.5, ((direction(0.5, 0.8), 0.08),), 0.1)
+        return Lighting(low, 1.5, ((direction(0.5, 0.8), 0.12),), 0.15)
     if kind == "bright":
         return Lighting(lamp, 0.6, ((direction(0.5, 0.8), 0.4), (direction(0.5, 0.8), 0.3)), 0.5)
     if kind == "window":
@@ -216,7 +217,7 @@ def room_lighting(kind: str, size, rng: np.random.Generator) -> Lighting:
 # ---------------------------------------------------------------------- clutter
 def _material(style: str, bank: TextureBank, rng: np.random.Generator) -> int:
     """A texture for a piece of clutter, matching the room's style."""
-    if style == "flat":
+    if style == "flat" and rng.random() < 0.5:  # half the clutter of a flat room is plain too
         return bank.add(tx.paint_texture(128, 256, rng, tuple(rng.uniform(0.3, 0.85, 3)), amplitude=0.03))
     pick = int(rng.integers(3))
     if pick == 0:

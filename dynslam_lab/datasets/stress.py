@@ -76,6 +76,8 @@ _KIND_WEIGHTS = (0.24, 0.16, 0.1, 0.12, 0.08, 0.15, 0.15)
 # How far the camera comes forward of the base view (m), added to the nearest mover distance the
 # generator draws so the camera never runs into a mover: halfsphere up to 0.31 m, xyz 0.05 m.
 _FORWARD_EXCURSION = {"static": 0.0, "xyz": 0.05, "rpy": 0.02, "halfsphere": 0.31, "loop": 0.0}
+# How far the camera moves sideways (m): a mover that enters starts this much further out.
+_SIDE_EXCURSION = {"static": 0.0, "xyz": 0.4, "rpy": 0.02, "halfsphere": 0.44, "loop": 0.0}
 
 
 @dataclass(frozen=True)
@@ -312,12 +314,13 @@ class StressPreset:
 
     def keep_out(self) -> list[Footprint]:
         """World footprints no clutter or partition may enter: the movers' paths, the camera's region
-        (1.2 m behind to 0.6 m ahead of the eye, 0.9 m either side) and for a loop its circle."""
+        (1.2 m behind to 0.6 m ahead of the eye, 0.9 m either side) and for a loop a square 1 m wider than
+        its circle (nothing right in front of the lens)."""
         out = [self.footprint_to_world(m.footprint()) for m in self.movers]
         out.append(self.footprint_to_world(Footprint.box(0.0, -0.3, 0.9, 0.9)))
         if self.motion == "loop":
             c = self.rig.loop_centre
-            out.append(Footprint.box(c[0], c[1], self.loop_radius + 0.6, self.loop_radius + 0.6))
+            out.append(Footprint.box(c[0], c[1], self.loop_radius + 1.0, self.loop_radius + 1.0))
         return out
 
     def without_movers(self) -> "StressPreset":
@@ -375,7 +378,7 @@ def _draw_size(kind: str, rng: np.random.Generator) -> tuple[float, float, float
 
 
 def _draw_mover(kind: str, pattern: str | None, rng: np.random.Generator, dist: tuple[float, float], speed: tuple[float, float],
-                tan_h: float, forward_excursion: float, shrink: float = 0.0, taken: tuple = ()) -> MoverSpec:
+                tan_h: float, excursion: tuple[float, float], shrink: float = 0.0, taken: tuple = ()) -> MoverSpec:
     """One :class:`MoverSpec` of ``kind`` drawn from ``rng`` (see :func:`random_scene_preset` for the ranges);
     ``shrink`` (0..1) lowers the longest path drawn towards the shortest and turns paths towards the image
     plane (to fit a crowded scene); the
@@ -387,7 +390,7 @@ def _draw_mover(kind: str, pattern: str | None, rng: np.random.Generator, dist: 
         pattern = str(rng.choice(PATTERNS, p=(0.4, 0.35, 0.25)))
     if kind == "door" and pattern == "enter":
         pattern = "stop_go"
-    lo = min(dist[0] + forward_excursion, dist[1])
+    lo = min(dist[0] + excursion[0], dist[1])
     hi = dist[1]
     if kind == "door":
         w, swing = size[0], float(rng.uniform(70.0, 100.0))
@@ -410,7 +413,7 @@ def _draw_mover(kind: str, pattern: str | None, rng: np.random.Generator, dist: 
         along, r = _extent(kind, size, float(alpha))
         z0 = _free_uniform(rng, lo, hi, [(a - r, b + r) for _, _, a, b in taken])
         reach = 2 * along if kind == "pushed" else along  # how far the body reaches ahead of its origin
-        x0 = side * (tan_h * z0 + reach + 0.25)  # just outside the view
+        x0 = side * (tan_h * z0 + reach + 0.25 + excursion[1])  # just outside the view
         x1 = -side * float(rng.uniform(-0.3, 0.6)) * tan_h * z0
         length = max(abs(x1 - x0) / np.cos(alpha), length_min)
         direction = np.array([-side * np.cos(alpha), np.sin(alpha)])
@@ -529,7 +532,7 @@ def random_scene_preset(
         yaw = 0.0
     camera = CAMERA_PRESETS["default"]
     tan_h = 0.5 * camera.width / camera.fx
-    excursion = _FORWARD_EXCURSION[motion]
+    excursion = (_FORWARD_EXCURSION[motion], _SIDE_EXCURSION[motion])
     loop_centre = np.array([0.0, -loop_radius])  # view frame
 
     movers: tuple[MoverSpec, ...] | None = () if n == 0 else None
@@ -539,7 +542,7 @@ def random_scene_preset(
         fp = spec.footprint()
         if any(fp.overlaps(q.footprint(), 0.05) for q in placed):
             return "their paths overlap"
-        if fp.corners()[:, 1].min() < 0.3 + excursion:
+        if fp.corners()[:, 1].min() < 0.3 + excursion[0]:
             return "a path comes closer than 0.3 m to the camera"
         if motion == "loop" and fp.distance_to(loop_centre) < loop_radius + 0.45:
             return "a path comes within 0.45 m of the loop"
@@ -590,7 +593,7 @@ def random_scene_preset(
     pts.append(probe.to_world(np.array([[-1.0, far], [1.0, far], [0.0, -1.3]])))
     if motion == "loop":
         c = probe.rig.loop_centre
-        reach = loop_radius + 1.2
+        reach = loop_radius + 1.5
         pts.append(np.array([[c[0] - reach, c[1] - reach], [c[0] + reach, c[1] + reach]]))
     P = np.concatenate(pts)
     lo_xy = P.min(axis=0) - margins[:2]
@@ -807,8 +810,9 @@ def _named() -> tuple[dict[str, StressPreset], dict[str, StressPreset]]:
                                            style="noise", lighting="lamp"),
     }
     loops = {
-        f"loop_{style}": random_scene_preset(30 + k, name=f"loop_{style}", motion="loop", kinds=(), style=style, n_frames=450)
-        for k, style in enumerate(("noise", "pattern", "photo", "flat"))
+        f"loop_{style}": random_scene_preset(30 + k, name=f"loop_{style}", motion="loop", kinds=(), style=style, lighting=light,
+                                             n_frames=450)
+        for k, (style, light) in enumerate((("noise", "bright"), ("pattern", "even"), ("photo", "window"), ("flat", "even")))
     }
     return suite, loops
 
