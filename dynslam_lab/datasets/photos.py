@@ -37,7 +37,7 @@ PHOTO_SOURCES = {
 
 # Regions of the portrait without the face (rows y0:y1, columns x0:x1): the flag on the left,
 # the uniform, name tag and ribbons at the bottom.
-_PORTRAIT_REGIONS = ((0, 330, 0, 150), (420, 600, 0, 512), (330, 600, 0, 170))
+_PORTRAIT_REGIONS = ((0, 330, 0, 150), (420, 600, 0, 512), (330, 600, 0, 150))
 
 
 def sample_data_path(name: str) -> Path:

@@ -538,9 +538,9 @@ def random_scene_preset(
     movers: tuple[MoverSpec, ...] | None = () if n == 0 else None
     why, specs = "", []
 
-    def misfit(spec: MoverSpec, placed: list[MoverSpec]) -> str:
+    def misfit(spec: MoverSpec, placed: list[Footprint]) -> str:
         fp = spec.footprint()
-        if any(fp.overlaps(q.footprint(), 0.05) for q in placed):
+        if any(fp.overlaps(q, 0.05) for q in placed):
             return "their paths overlap"
         if fp.corners()[:, 1].min() < 0.3 + excursion[0]:
             return "a path comes closer than 0.3 m to the camera"
@@ -558,11 +558,12 @@ def random_scene_preset(
                 if kinds is None and kind == "door" and any(q.kind == "door" for q in specs):
                     kind = "box"
                 pattern = None if patterns is None else patterns[i if len(patterns) > 1 else 0]
+                placed = [q.footprint() for q in specs]
                 taken = tuple((float(c[:, 0].min()), float(c[:, 0].max()), float(c[:, 1].min()), float(c[:, 1].max()))
-                              for c in (q.footprint().corners() for q in specs))
+                              for c in (fp.corners() for fp in placed))
                 for k in range(40):
                     spec = _draw_mover(kind, pattern, rm, (lo, hi), (vlo, vhi), tan_h, excursion, shrink=k / 40, taken=taken)
-                    why = misfit(spec, specs)
+                    why = misfit(spec, placed)
                     if not why:
                         specs.append(spec)
                         break

@@ -317,7 +317,8 @@ def _build_stress_full(preset: StressPreset) -> tuple[sc.OfficeScene, TextureAtl
 def _build_stress(preset: StressPreset) -> tuple[sc.OfficeScene, TextureAtlas]:
     """A stress scene and its atlas; without movers, the same scene (and atlas) with the movers dropped,
     so that both versions share every texel."""
-    full = replace(preset, name="", with_movers=True, n_frames=1)  # the scene does not depend on these
+    # the scene does not depend on these (nor on the camera motion, but for a loop's keep-out)
+    full = replace(preset, name="", with_movers=True, n_frames=1, motion="loop" if preset.motion == "loop" else "static")
     scene, atlas = _build_stress_full(full)
     if preset.with_movers:
         return scene, atlas
