@@ -13,11 +13,6 @@ from __future__ import annotations
 
 import argparse
 
-from ..datasets.stress import MOVER_KINDS
-from ..datasets.camera_paths import MOTIONS
-from ..datasets.movers import PATTERNS
-from ..datasets.rooms import LIGHTINGS, ROOM_STYLES
-
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -41,14 +36,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--list", action="store_true", help="print the presets and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     g = p.add_argument_group("random stress scenes (PRESET 'random')")
-    g.add_argument("--motion", choices=MOTIONS, help="camera motion (default: drawn among static, xyz, rpy, halfsphere)")
+    # (values are checked by random_scene_preset: importing the renderer here would slow down `dynslam --help`)
+    g.add_argument("--motion", help="camera motion: static, xyz, rpy, halfsphere or loop (default: drawn among the first four)")
     g.add_argument("--movers", type=int, default=None, metavar="K", help="number of movers 0..4 (default: drawn, 1..4)")
     g.add_argument("--kinds", default=None, metavar="K1,K2",
-                   help=f"comma-separated kind of each mover, from {', '.join(MOVER_KINDS)} (sets the number of movers)")
+                   help="comma-separated kind of each mover, from person, box, cart, panel, door, carried, pushed "
+                        "(sets the number of movers)")
     g.add_argument("--patterns", default=None, metavar="P1,P2",
-                   help=f"motion pattern of every mover (one) or of each, from {', '.join(PATTERNS)}")
-    g.add_argument("--style", choices=ROOM_STYLES, help="room surfaces (default: drawn)")
-    g.add_argument("--lighting", choices=LIGHTINGS, help="lighting family (default: drawn)")
+                   help="motion pattern of every mover (one) or of each, from pace, stop_go, enter")
+    g.add_argument("--style", help="room surfaces: noise, flat, pattern or photo (default: drawn)")
+    g.add_argument("--lighting", help="lighting family: even, dim, lamp, bright or window (default: drawn)")
     g.add_argument("--distance", type=float, nargs=2, default=(0.8, 3.0), metavar=("LO", "HI"),
                    help="distance of the movers' paths from the camera, m (default 0.8 3.0)")
     g.add_argument("--speed", type=float, nargs=2, default=(0.4, 2.0), metavar=("LO", "HI"),
@@ -64,7 +61,7 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 
 def run(args: argparse.Namespace) -> int:
     from ..datasets import stress
-    from ..datasets.synthetic import PRESETS, get_preset, render_sequence, preset_names
+    from ..datasets.synthetic import PRESETS, get_preset, preset_names, render_sequence
 
     if args.list:
         print(f"{'preset':<20} {'scene':<12} {'camera motion':<14} {'frames':>6}")
