@@ -6,12 +6,32 @@ Example::
     dynslam synth walking_xyz out/walking_xyz --frames 120 --seed 1
     dynslam synth boxes_xyz out/boxes_xyz                       # a named stress scene
     dynslam synth boxes_xyz out/boxes_xyz_ref --no-movers       # the same room and camera path, no movers
-    dynslam synth random out/r7 --seed 7 --motion rpy --kinds box,pushed --frames 60
+    dynslam synth random --seed 7 --motion rpy --kinds box,pushed --frames 60 out/r7
 """
 
 from __future__ import annotations
 
 import argparse
+
+
+class _IntermixedParser(argparse.ArgumentParser):
+    """Lets options come between PRESET and OUTDIR (``dynslam synth random --seed 7 OUT``).
+
+    With two optional positionals argparse takes both from the first run of positional words, so the
+    OUTDIR after the options would be "unrecognized"; intermixed parsing (argparse's own
+    ``parse_known_intermixed_args``) parses the options first and the positionals from what is left.
+    """
+
+    _inside = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self._inside:  # the two passes of the intermixed parse
+            return super().parse_known_args(args, namespace)
+        self._inside = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._inside = False
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,6 +73,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--max-coverage", type=float, default=0.6, metavar="F",
                    help="bound on a rough estimate of the image fraction the movers cover (default 0.6)")
     p.set_defaults(func=run)
+    p.__class__ = _IntermixedParser  # the sub-command parser, made by the main parser, parses intermixed
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:

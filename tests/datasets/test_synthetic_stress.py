@@ -331,7 +331,7 @@ def test_cli_renders_random_scenes_with_and_without_movers(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "boxes_xyz" in out and "loop_photo" in out and "random" in out
     args = ["--seed", "9", "--motion", "static", "--kinds", "box,person", "--style", "flat", "--frames", "2", "--quiet"]
-    assert main(["synth", "random", str(tmp_path / "m"), *args]) == 0
+    assert main(["synth", "random", *args, str(tmp_path / "m")]) == 0  # options before or after OUTDIR
     assert main(["synth", "random", str(tmp_path / "n"), *args, "--no-movers"]) == 0
     inst_m = json.loads((tmp_path / "m" / "instances.json").read_text())
     assert sorted(v["class"] for v in inst_m.values()) == ["box", "person"]
