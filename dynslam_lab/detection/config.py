@@ -120,6 +120,12 @@ class DetectionConfig:
             raise ValueError(f"detection.oracle.miss_rate: {o.miss_rate} is outside [0, 1]")
         if o.jitter < 0 or o.false_positives < 0:
             raise ValueError("detection.oracle: jitter and false_positives must be >= 0")
+        if o.min_area < 0:
+            raise ValueError(f"detection.oracle.min_area: {o.min_area} must be >= 0 pixels")
+        if self.nanodet_reg_max < 1:
+            raise ValueError(f"detection.nanodet_reg_max: {self.nanodet_reg_max} must be >= 1")
+        if self.num_threads < 0:
+            raise ValueError(f"detection.num_threads: {self.num_threads} must be >= 0 (0 = onnxruntime's default)")
         for c in self.classes:
             class_id(c)
         class_id(o.false_positive_class)

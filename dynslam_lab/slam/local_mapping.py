@@ -71,6 +71,19 @@ class LocalMappingConfig:
     kf_cull_redundant: float = 0.9  # fraction of points seen elsewhere that makes a keyframe redundant; ORB-SLAM2: 0.9
     kf_cull_min_obs: int = 3  # other keyframes that must see a point; ORB-SLAM2: 3
 
+    def __post_init__(self) -> None:
+        for name in ("fuse_neighbours", "cull_min_obs", "cull_age", "recent_age", "ba_max_fixed", "ba_iterations"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"LocalMappingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("ba_window", "ba_every", "kf_cull_min_obs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"LocalMappingConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if not self.fuse_radius > 0:
+            raise ValueError(f"LocalMappingConfig.fuse_radius must be > 0 pixels, got {self.fuse_radius}")
+        for name in ("cull_found_ratio", "kf_cull_redundant"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"LocalMappingConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+
 
 def create_points_from_depth(
     mp: Map, kf: KeyFrame, close_depth: float, min_new: int, rgb: np.ndarray | None = None

@@ -90,6 +90,37 @@ class TrackingConfig:
     kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
 
+    def __post_init__(self) -> None:
+        positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth")
+        at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
+                        "min_track_inliers")
+        non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
+                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers",
+                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
+        ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
+        for name in at_least_one:
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in non_negative:
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ratios:
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"TrackingConfig.{name} must be in (0, 1], got {getattr(self, name)}")
+        if not self.min_depth < self.max_depth:
+            raise ValueError(f"TrackingConfig: min_depth ({self.min_depth}) must be below max_depth ({self.max_depth})")
+        if not -1 <= self.view_cos <= 1:
+            raise ValueError(f"TrackingConfig.view_cos must be in [-1, 1], got {self.view_cos}")
+        if self.pnp_min_inliers < 4:
+            raise ValueError(f"TrackingConfig.pnp_min_inliers must be >= 4 (a PnP pose needs 4 points), got {self.pnp_min_inliers}")
+        if self.kf_min_frames > self.kf_max_frames:
+            raise ValueError(
+                f"TrackingConfig: kf_min_frames ({self.kf_min_frames}) must not exceed kf_max_frames ({self.kf_max_frames})"
+            )
+
 
 class TrackState:
     """Tracking states (strings, for files and plots)."""

@@ -62,7 +62,7 @@ def test_missing_file_and_no_overlap(tmp_path, files, capsys):
 
 def test_bad_delta(files, capsys):
     g, e = files
-    assert main(["eval", "--gt", str(g), "--est", str(e), "--delta", "1.5"]) == 1
+    assert main(["eval", "--gt", str(g), "--est", str(e), "--delta", "1.5"]) == 2  # usage error
     assert "whole number" in capsys.readouterr().err
 
 
