@@ -284,7 +284,7 @@ def download(
             with open(part, mode) as fh:
                 while True:
                     try:
-                        block = response.read(CHUNK)
+                        block = response.read1(CHUNK)  # what has arrived: a stall keeps the bytes before it
                     except (socket.timeout, TimeoutError):
                         raise DownloadError(
                             f"{url}: transfer stalled: no data for {timeout:g} s after {written} bytes; run again to "

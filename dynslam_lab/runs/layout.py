@@ -220,8 +220,11 @@ class RunContents:
 def _load_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray] | None:
     if not path.is_file():
         return None
+    with path.open("rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":  # an npz file is a zip archive
+            raise ValueError(f"{path}: not an npz file (it does not start like a zip archive; damaged or replaced?)")
     try:
-        with np.load(path) as z:
+        with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except Exception as exc:  # zipfile, zlib, pickle and format errors of a damaged file: all one message
         raise ValueError(f"{path}: not a readable npz file ({type(exc).__name__}: {exc})") from None

@@ -110,7 +110,10 @@ class RunRecorder:
     dynamic_xyz, dynamic_frame : world points of keypoints judged dynamic, and their frames.
     region_masks : keyframe frame index -> ``(H, W)`` bool pixels judged dynamic (the dense map
         leaves them out).
-    errors : one message per frame that failed.
+    errors : one message per frame that failed (``summary.json`` keeps the first and last 25).
+    n_ok : frames processed without an exception.
+    error_shapes : the first frames' errors without paths and numbers (a repeating error).
+    shape_counts : how often each kind of error occurred (only the first few are logged).
     """
 
     writer: RunWriter
@@ -122,16 +125,23 @@ class RunRecorder:
     errors: list[str] = field(default_factory=list)
     n_ok: int = 0
     error_shapes: list[str] = field(default_factory=list)
+    shape_counts: dict[str, int] = field(default_factory=dict)
 
     def failed(self, index: int, timestamp: float, exc: Exception) -> None:
-        """A frame that could not be processed at all."""
+        """A frame that could not be processed at all (logged: the first few of each kind of error)."""
         msg = f"frame {index}: {type(exc).__name__}: {exc}"
-        log.warning("%s", msg)
+        shape = _error_shape(f"{type(exc).__name__}: {exc}")
+        seen = self.shape_counts.get(shape, 0)
+        self.shape_counts[shape] = seen + 1
+        starting = self.n_ok == 0 and seen > 0  # the first frames failing alike: the stop will say it once
+        if not starting and seen < 3:
+            note = " (further frames failing the same way are listed in summary.json only)" if seen == 2 else ""
+            log.warning("%s%s", msg, note)
         log.debug("%s", traceback.format_exc())
         self.errors.append(msg)
         self.rows.append({"frame": index, "timestamp": timestamp})
         if self.n_ok == 0 and len(self.error_shapes) < REPEATED_ERROR_FRAMES:
-            self.error_shapes.append(_error_shape(f"{type(exc).__name__}: {exc}"))
+            self.error_shapes.append(shape)
 
     def repeating_error(self, n_frames: int) -> str | None:
         """The error of the first frames when they all failed the same way (it will repeat)."""
@@ -196,7 +206,9 @@ class RunRecorder:
             "loop_edges": [list(e) for e in system.keyframe_arrays()["loop_edges"].tolist()],
             "timing_median_ms": {s: (float(np.nanmedian(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
             "timing_mean_ms": {s: (float(np.nanmean(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
-            "errors": self.errors[-50:],
+            "failed_frames": len(self.errors),
+            "errors": self.errors if len(self.errors) <= 50 else
+            self.errors[:25] + [f"... {len(self.errors) - 50} more ..."] + self.errors[-25:],
             "pipeline": dict(system.description),
             "config": config_to_dict(system.effective_config()),
         }
