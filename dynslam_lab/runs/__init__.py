@@ -6,11 +6,11 @@ a schema version, :func:`verify_run`); :mod:`.runner` drives
 :class:`~dynslam_lab.slam.system.System` frame by frame and records.
 """
 
-from .folder import FolderLockedError, OutputFolder, OutputFolderError, atomic_write, read_marker
+from .folder import FolderLockedError, OutputFolder, OutputFolderError, atomic_write, check_output_file, read_marker
 from .layout import FILES, SCHEMA_VERSION, STAGES, RunContents, RunWriter, read_run, verify_run
 
 __all__ = ["FILES", "SCHEMA_VERSION", "STAGES", "RunContents", "RunWriter", "read_run", "verify_run",
-           "OutputFolder", "OutputFolderError", "FolderLockedError", "atomic_write", "read_marker",
+           "OutputFolder", "OutputFolderError", "FolderLockedError", "atomic_write", "read_marker", "check_output_file",
            "RunRecorder", "run_sequence", "RunInterrupted", "RunStopped"]
 
 _RUNNER = ("RunRecorder", "run_sequence", "RunInterrupted", "RunStopped", "FLUSH_EVERY")

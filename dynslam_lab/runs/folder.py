@@ -57,6 +57,7 @@ __all__ = [
     "atomic_write",
     "file_record",
     "read_marker",
+    "check_output_file",
 ]
 
 MARKER = ".dynslam-output.json"
@@ -107,6 +108,27 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> dict:
         if tmp_path.exists():
             tmp_path.unlink()
     return record
+
+
+def check_output_file(path: str | Path, suffix: str, force: bool = False, option: str = "--force") -> Path:
+    """Check the name of a single output file (``vocab build --out VOC.npz``) before the work.
+
+    Refuses a folder (``--out /tmp`` once wrote ``/tmp.npz``), a name without ``suffix`` (no
+    suffix is silently appended), and an existing file unless ``force``; creates the parent
+    folder. Write the file itself with :func:`atomic_write`. Returns the path.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputFolderError(f"{path}: is a folder; give a file name such as {path / ('output' + suffix)}")
+    if path.suffix != suffix:
+        raise OutputFolderError(f"{path}: the output file name must end with {suffix}")
+    if path.exists() and not force:
+        raise OutputFolderError(f"{path}: exists; pass {option} to replace it, or choose another name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputFolderError(f"{path.parent}: cannot create the folder ({exc.strerror or exc})") from None
+    return path
 
 
 def read_marker(folder: str | Path) -> dict | None:

@@ -15,6 +15,11 @@
       thumbs/KFID.jpg      160x120 keyframe thumbnails (the viewer's image frustums)
       labels/NNNNNN.csv    per-frame keypoint tables (``--save-labels``)
       map.ply              the dense static point cloud (:mod:`dynslam_lab.mapping.dense`)
+      .dynslam-output.json, .dynslam-output.files, .dynslam-output.lock
+                           the output folder's marker, journal and lock (:mod:`.folder`)
+
+``summary.json`` also holds ``run_id``, ``state`` (``running``, ``complete``, ``interrupted``,
+``failed``), ``failed_frames`` and ``files`` (relative path -> size and SHA-256).
 
 The folder is opened as an :class:`~.folder.OutputFolder` (fresh, locked, marked; see
 :mod:`.folder`). Every file is written atomically (a temporary file in the same folder, then a

@@ -131,3 +131,19 @@ def test_atomic_write_keeps_the_old_file_when_interrupted(tmp_path):
     assert p.read_text() == "old" and [q.name for q in tmp_path.iterdir()] == ["t.txt"]
     assert atomic_write(p, lambda tmp: tmp.write_text("new")) == file_record(p)
     assert p.read_text() == "new"
+
+
+def test_single_output_files(tmp_path):
+    from dynslam_lab.runs import check_output_file
+
+    with pytest.raises(OutputFolderError, match="is a folder; give a file name such as"):
+        check_output_file(tmp_path, ".npz")  # `vocab build --out /tmp` once wrote /tmp.npz
+    assert not (tmp_path.parent / (tmp_path.name + ".npz")).exists()
+    with pytest.raises(OutputFolderError, match=r"must end with \.npz"):
+        check_output_file(tmp_path / "voc", ".npz")
+    p = check_output_file(tmp_path / "new" / "voc.npz", ".npz")
+    assert p.parent.is_dir() and not p.exists()
+    p.write_bytes(b"theirs")
+    with pytest.raises(OutputFolderError, match="exists; pass --force"):
+        check_output_file(p, ".npz")
+    assert check_output_file(p, ".npz", force=True) == p and p.read_bytes() == b"theirs"
