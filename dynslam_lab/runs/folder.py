@@ -85,6 +85,16 @@ def file_record(path: str | Path) -> dict:
     return {"size": size, "sha256": h.hexdigest()}
 
 
+def _file_mode() -> int:
+    """Permissions of a new file under the process's umask (mkstemp's own 0600 would hide results)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_MODE = _file_mode()
+
+
 def _is_temp(name: str) -> bool:
     """Temporary files of :func:`atomic_write` (``.NAME.XXXX.tmp``)."""
     return name.startswith(".") and name.endswith(".tmp")
@@ -103,6 +113,7 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> dict:
     try:
         write(tmp_path)
         record = file_record(tmp_path)
+        os.chmod(tmp_path, _MODE)
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
@@ -293,9 +304,9 @@ class OutputFolder:
                 f"{p}: {self.option} would delete {len(foreign)} file(s) that dynslam_lab did not write there "
                 f"({shown}); nothing was changed: move them away first"
             )
-        for f in ours:
-            if f != p / LOCK:
-                f.unlink(missing_ok=True)
+        last = [p / JOURNAL, p / MARKER]  # an interrupted --force leaves a folder still recognised as ours
+        for f in [f for f in ours if f not in last and f != p / LOCK] + last:
+            f.unlink(missing_ok=True)
         _remove_empty_dirs(p)
         self.replaced = True
 

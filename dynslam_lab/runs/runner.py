@@ -114,6 +114,7 @@ class RunRecorder:
     n_ok : frames processed without an exception.
     error_shapes : the first frames' errors without paths and numbers (a repeating error).
     shape_counts : how often each kind of error occurred (only the first few are logged).
+    config_dict : ``summary.json``'s ``config`` (computed on the first summary).
     """
 
     writer: RunWriter
@@ -126,6 +127,7 @@ class RunRecorder:
     n_ok: int = 0
     error_shapes: list[str] = field(default_factory=list)
     shape_counts: dict[str, int] = field(default_factory=dict)
+    config_dict: dict | None = None
 
     def failed(self, index: int, timestamp: float, exc: Exception) -> None:
         """A frame that could not be processed at all (logged: the first few of each kind of error)."""
@@ -188,6 +190,12 @@ class RunRecorder:
         w.dynamic_points(xyz, fr)
         w.summary(summary)
 
+    def _config(self, system: System) -> dict:
+        """The config every stage runs with (fixed for the run: computed once)."""
+        if self.config_dict is None:
+            self.config_dict = config_to_dict(system.effective_config())
+        return self.config_dict
+
     def summary(self, sequence, system: System, n_frames: int, complete: bool, state: str = "running") -> dict:
         """The ``summary.json`` dict of the run so far (``state``: running, complete, interrupted, failed)."""
         stage_ms = {s: np.array([r.get(s, np.nan) for r in self.rows], float) for s in STAGES}
@@ -210,7 +218,7 @@ class RunRecorder:
             "errors": self.errors if len(self.errors) <= 50 else
             self.errors[:25] + [f"... {len(self.errors) - 50} more ..."] + self.errors[-25:],
             "pipeline": dict(system.description),
-            "config": config_to_dict(system.effective_config()),
+            "config": self._config(system),
         }
 
 
