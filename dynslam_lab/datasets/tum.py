@@ -297,12 +297,6 @@ class TumSequence:
         depth = load_depth(e.depth, self.camera.depth_scale)
         if rgb.shape[:2] != depth.shape:
             raise DatasetError(f"{e.depth}: depth size {depth.shape} differs from colour size {rgb.shape[:2]} ({e.rgb})")
-        cam = self.camera
-        if rgb.shape[:2] != (cam.height, cam.width):
-            raise DatasetError(
-                f"{e.rgb}: image is {rgb.shape[1]}x{rgb.shape[0]} but the camera '{cam.name}' is {cam.width}x{cam.height} "
-                "(its intrinsics would be wrong): fix camera.json or pass another --camera"
-            )
         mask = None
         if e.mask is not None and e.mask.is_file():
             mask = _imread(e.mask, cv2.IMREAD_UNCHANGED, "instance mask").astype(np.int32)

@@ -79,6 +79,15 @@ def _error_shape(message: str) -> str:
     return re.sub(r"\d+(\.\d+)?", "#", re.sub(r"\S*[/\\]\S*", "<path>", message))
 
 
+def _check_size(frame, camera) -> None:
+    """A frame of another size than the camera would be tracked with the wrong intrinsics."""
+    h, w = frame.rgb.shape[:2]
+    if (h, w) != (camera.height, camera.width):
+        where = frame.rgb_path or f"frame {frame.index}"
+        raise ValueError(f"{where}: image is {w}x{h} but the camera '{camera.name}' is {camera.width}x{camera.height} "
+                         "(its intrinsics would be wrong): fix camera.json or pass another --camera")
+
+
 @contextmanager
 def _sigint_deferred():
     """While the partial run is written after a Ctrl-C, a second Ctrl-C only says to wait."""
@@ -281,6 +290,7 @@ def run_sequence(
                 for i in range(n):
                     try:
                         frame = sequence[i]
+                        _check_size(frame, system.camera)
                         res = system.process(frame)
                     except Exception as exc:  # a bad frame must not end the run ...
                         rec.failed(i, float(stamps[i]), exc)

@@ -4,7 +4,6 @@ import cv2
 import numpy as np
 import pytest
 
-from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.datasets import DatasetError, TumSequence, associate, load_depth, read_file_list
 from tests.conftest import shared_file
 
@@ -44,7 +43,7 @@ def test_associate_each_stamp_used_once():
 
 def test_sequence_loads_frames_in_metres(tmp_path):
     _write_seq(tmp_path / "seq")
-    seq = TumSequence(tmp_path / "seq", camera=CAMERA_PRESETS["default"].with_(width=64, height=48))
+    seq = TumSequence(tmp_path / "seq")
     assert len(seq) == 5
     f = seq[2]
     assert f.rgb.shape == (48, 64, 3) and f.rgb.dtype == np.uint8
