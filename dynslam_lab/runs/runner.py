@@ -33,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..config import config_to_dict
+from ..datasets.prefetch import FramePrefetcher, PrefetchConfig
 from ..evaluation.tables import evaluate
 from ..mapping.dense import write_dense_map
 from ..slam.system import FrameResult, System
@@ -241,6 +242,7 @@ def run_sequence(
     flush_every: int = FLUSH_EVERY,
     on_frame: Callable[[object, FrameResult], None] | None = None,
     force: bool = False,
+    prefetch: PrefetchConfig = PrefetchConfig(),
 ) -> dict:
     """Run ``system`` over ``sequence`` and write the run folder ``outdir``.
 
@@ -259,6 +261,8 @@ def run_sequence(
         notebooks).
     force : replace a previous run folder at ``outdir`` (recognised by its marker; a folder
         holding files dynslam_lab did not write is never touched).
+    prefetch : read-ahead of the frames (:class:`~dynslam_lab.datasets.prefetch.PrefetchConfig`;
+        ``queue_size=0`` reads in this thread).
 
     Returns
     -------
@@ -286,10 +290,13 @@ def run_sequence(
         bar = tqdm(total=n, desc=f"dynslam {sequence.name}", unit="frame", disable=not progress)
         t_run = time.perf_counter()
         try:
-            with blas_single_thread(), bar:
-                for i in range(n):
+            with blas_single_thread(), bar, FramePrefetcher(sequence, n, prefetch) as frames:
+                t_frame = time.perf_counter()
+                for item in frames:  # frames read ahead on the other core; a bad one arrives as its error
+                    i, frame = item.index, item.frame
                     try:
-                        frame = sequence[i]
+                        if item.error is not None:
+                            raise item.error
                         _check_size(frame, system.camera)
                         res = system.process(frame)
                     except Exception as exc:  # a bad frame must not end the run ...
@@ -299,7 +306,10 @@ def run_sequence(
                         repeating = rec.repeating_error(n)
                         if repeating:  # ... but an error that will hit every frame does
                             raise RunStopped(repeating) from None
+                        t_frame = time.perf_counter()
                         continue
+                    res.timings_ms["read"] = item.wait_ms
+                    res.timings_ms["wall"] = 1e3 * (time.perf_counter() - t_frame)
                     rec.frame(i, res, system)
                     if on_frame is not None:
                         on_frame(frame, res)
@@ -307,6 +317,7 @@ def run_sequence(
                     bar.update()
                     if i == 0 or (i + 1) % flush_every == 0:
                         rec.write(system, rec.summary(sequence, system, n, complete=False))
+                    t_frame = time.perf_counter()
             return _finish(sequence, system, rec, n, t_run)
         except KeyboardInterrupt:
             summary = _stop(sequence, system, rec, n, t_run, "interrupted",

@@ -99,6 +99,7 @@ class TrackingConfig:
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+    overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
@@ -112,6 +113,8 @@ class TrackingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not isinstance(self.overlap_detection, bool):
+            raise ValueError(f"TrackingConfig.overlap_detection must be a bool, got {self.overlap_detection!r}")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
