@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--port must be in 1..65535, got {args.port}")
     if args.max_dense_points < 0:
         raise UsageError(f"--max-dense-points must be >= 0, got {args.max_dense_points}")
-    if args.timeout is not None and not args.timeout > 0:
-        raise UsageError(f"--timeout must be > 0 seconds, got {args.timeout}")
+    if args.timeout is not None and not args.timeout >= 0:
+        raise UsageError(f"--timeout must be >= 0 seconds, got {args.timeout}")
     t0 = time.perf_counter()
     data = load_run(args.outdir, ground_truth=args.gt, dense=False)  # map.ply is read in the background
     summary_file = Path(args.outdir) / "summary.json"

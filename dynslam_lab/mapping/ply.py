@@ -175,11 +175,6 @@ def read_ply_header(path: str | Path) -> PlyHeader:
     names = [p[0] for p in props]
     if not {"x", "y", "z"} <= set(names):
         raise PlyError(f"{path}: vertex element lacks x, y, z properties (has {names})")
-    data_bytes = path.stat().st_size - offset
-    per_vertex = sum(np.dtype(t).itemsize for _, t in props) if fmt != "ascii" else 2 * len(props)  # ascii: "v " at least
-    if n_vertex * per_vertex > data_bytes:
-        raise PlyError(f"{path}: header announces {n_vertex} vertices, but the file holds data for at most "
-                       f"{data_bytes // per_vertex} (truncated, or a wrong count)")
     return PlyHeader(fmt, n_vertex, tuple(props), offset)
 
 
@@ -200,6 +195,11 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     head = read_ply_header(path)
     n_vertex, props = head.n_vertex, head.properties
     names = [p[0] for p in props]
+    data_bytes = path.stat().st_size - head.data_offset  # checked before reading: a count of 10^15 must not allocate
+    per_vertex = sum(np.dtype(t).itemsize for _, t in props) if head.format != "ascii" else 2 * len(props)
+    if n_vertex * per_vertex > data_bytes:
+        raise PlyError(f"{path}: truncated: the header announces {n_vertex} vertices, the file holds data for at most "
+                       f"{data_bytes // per_vertex}")
     with path.open("rb") as fh:
         fh.seek(head.data_offset)
         if head.format == "ascii":
