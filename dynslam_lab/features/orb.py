@@ -68,6 +68,10 @@ class OrbConfig:
             )
         if self.oversample < 1.0:
             raise ValueError(f"OrbConfig.oversample must be >= 1, got {self.oversample}")
+        if self.edge_threshold < 0:
+            raise ValueError(f"OrbConfig.edge_threshold must be >= 0 pixels, got {self.edge_threshold}")
+        if self.patch_size < 3:
+            raise ValueError(f"OrbConfig.patch_size must be >= 3 pixels, got {self.patch_size}")
         if not 0 <= self.subpixel_levels <= self.n_levels:
             raise ValueError(f"OrbConfig.subpixel_levels must be in [0, n_levels], got {self.subpixel_levels}")
         if not self.subpixel_max_shift > 0:

@@ -117,6 +117,8 @@ class LoopClosingConfig:
             raise ValueError("LoopClosingConfig.min_keyframes_between and loop_group_size must be >= 0")
         if self.loop_edge_weight <= 0:
             raise ValueError(f"LoopClosingConfig.loop_edge_weight must be > 0, got {self.loop_edge_weight}")
+        if self.global_ba_iterations < 1:
+            raise ValueError(f"LoopClosingConfig.global_ba_iterations must be >= 1, got {self.global_ba_iterations}")
 
 
 @dataclass(frozen=True)
