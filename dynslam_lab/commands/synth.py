@@ -55,6 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="stress scenes: the same room and camera path without movers (bit-identical where no mover is seen)")
     p.add_argument("--list", action="store_true", help="print the presets and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true",
+                   help="replace a sequence this command wrote before in OUTDIR (never a folder it did not make)")
     g = p.add_argument_group("random stress scenes (PRESET 'random')")
     # (values are checked by random_scene_preset: importing the renderer here would slow down `dynslam --help`)
     g.add_argument("--motion", help="camera motion: static, xyz, rpy, halfsphere or loop (default: drawn among the first four)")
@@ -83,6 +85,7 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 def run(args: argparse.Namespace) -> int:
     from ..datasets import stress
     from ..datasets.synthetic import PRESETS, get_preset, preset_names, render_sequence
+    from ..runs import OutputFolder
 
     if args.list:
         print(f"{'preset':<20} {'scene':<12} {'camera motion':<14} {'frames':>6}")
@@ -119,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         preset = preset.without_movers()
     if isinstance(preset, stress.StressPreset):
         print(stress.describe(preset))
-    out = render_sequence(preset, args.outdir, n_frames=args.frames, seed=args.seed, progress=not args.quiet)
+    with OutputFolder(args.outdir, kind="synth", force=args.force) as folder:
+        out = render_sequence(preset, folder.path, n_frames=args.frames, seed=args.seed, progress=not args.quiet)
     print(f"wrote {out}")
     return 0

@@ -247,6 +247,9 @@ class OutputFolder:
         p = self.path
         if p.exists() and not p.is_dir():
             raise OutputFolderError(f"{p}: exists and is not a folder; give the name of a new folder")
+        if p.is_dir() and read_marker(p) is None and any(e.name != LOCK for e in p.iterdir()):
+            self._refuse_foreign(p)  # before the lock file: a folder that is not ours gets nothing
+        lock_existed = (p / LOCK).exists()
         try:
             p.mkdir(parents=True, exist_ok=True)
             fd = os.open(p / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
@@ -272,8 +275,19 @@ class OutputFolder:
             self._mark()
         except BaseException:
             self._unlock()
+            if not lock_existed:  # a refused folder is left as it was found
+                (p / LOCK).unlink(missing_ok=True)
             raise
         return self
+
+    @staticmethod
+    def _refuse_foreign(p: Path) -> None:
+        entries = sorted(e.name for e in p.iterdir() if e.name != LOCK)
+        shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+        raise OutputFolderError(
+            f"{p}: the folder is not empty ({len(entries)} entries: {shown}) and was not written by "
+            "dynslam_lab; nothing was changed: choose a new or empty folder"
+        )
 
     def _check_and_clear(self) -> None:
         p = self.path
@@ -282,11 +296,7 @@ class OutputFolder:
             return
         marker = read_marker(p)
         if marker is None:
-            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-            raise OutputFolderError(
-                f"{p}: the folder is not empty ({len(entries)} entries: {shown}) and was not written by "
-                "dynslam_lab; nothing was changed: choose a new or empty folder"
-            )
+            self._refuse_foreign(p)
         if marker["kind"] != self.kind:
             raise OutputFolderError(
                 f"{p}: holds a previous '{marker['kind']}' output, not a '{self.kind}'; nothing was changed: "
