@@ -67,6 +67,7 @@ PEERS = {
 }
 LABELS = {"orbslam3": "ORB-SLAM3", "open3d_legacy": "Open3D legacy", "open3d_tensor": "Open3D tensor"}
 VOCABULARY_FILE = "orb_vocabulary_dbow2.txt"
+WALL_MARK = "# peers.py: process wall time s: "  # last line of each run's log
 #: Columns of ``peers.csv``, in order.
 COLUMNS = (
     "sequence", "system", "kind", "status", "frames", "tracked", "lost", "coverage", "loops",
@@ -216,12 +217,27 @@ def run_system(spec: SystemSpec, seqdir: Path, rundir: Path, max_frames: int | N
         except subprocess.TimeoutExpired:
             code = None
     wall = time.perf_counter() - t0
+    with log.open("a") as fh:
+        fh.write(f"{WALL_MARK}{wall:.3f}\n")
     if code is None:
         return f"failed: timed out after {timeout:g} s (see {log})", wall
     if code != 0:
-        tail = [s for s in log.read_text(errors="replace").splitlines() if s.strip()]
+        tail = [s for s in log.read_text(errors="replace").splitlines() if s.strip() and not s.startswith(WALL_MARK)]
         return f"failed: exit code {code}: {tail[-1] if tail else ''} (see {log})", wall
     return "ok", wall
+
+
+def logged_wall(rundir: Path) -> float:
+    """The process wall time a finished run's log recorded (NaN when it has none)."""
+    log = rundir.parent / f"{rundir.name}.log"
+    if log.is_file():
+        for line in reversed(log.read_text(errors="replace").splitlines()):
+            if line.startswith(WALL_MARK):
+                try:
+                    return float(line[len(WALL_MARK):])
+                except ValueError:
+                    break
+    return float("nan")
 
 
 def _stat(d: dict | None, *keys) -> float:
@@ -417,7 +433,8 @@ def plot_bars(rows: list[dict], path: Path) -> bool:
         if log:
             ax.set_yscale("log")
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0].legend(fontsize="small", ncol=min(len(systems), 3))
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside upper center", ncol=min(len(systems), 6), fontsize="small")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
@@ -464,7 +481,7 @@ def run_benchmark(seqdirs: list[Path], specs: list[SystemSpec], out: Path, max_f
         if spec.skip:
             status, wall = spec.skip, float("nan")
         elif reuse and done.is_file():
-            status, wall = "ok", float("nan")
+            status, wall = "ok", logged_wall(rundir)
         else:
             status, wall = run_system(spec, seq, rundir, max_frames, timeout)
         print(f"[{k}/{len(plan)}] {label} / {spec.name}: {status}" + ("" if math.isnan(wall) else f" ({wall:.1f} s)"),

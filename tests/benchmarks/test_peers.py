@@ -236,6 +236,10 @@ def test_table_of_fake_peers_matches_hand_computed_errors(tmp_path):
         peers.main([str(seq), "--out", str(out), "--filters", "", "--peers", "a", "--peer-script", f"a={a}"])
     assert peers.main([str(seq), "--out", str(out), "--filters", "", "--peers", "a", "--peer-script", f"a={a}",
                        "--reuse", "--no-plots"]) == 0
+    with (out / "peers.csv").open() as fh:
+        again = list(csv.DictReader(fh))
+    assert len(again) == 1 and again[0]["ate_rmse_m"] == ra["ate_rmse_m"]
+    assert float(again[0]["wall_s"]) == pytest.approx(float(ra["wall_s"]), abs=1e-3)  # from the run's log
 
 
 def test_missing_or_failing_peer_is_reported_and_the_rest_runs(tmp_path, capsys):
