@@ -418,7 +418,7 @@ def plot_bars(rows: list[dict], path: Path) -> bool:
     systems = list(dict.fromkeys(r["system"] for r in ok))
     width = 0.8 / len(systems)
     x = np.arange(len(seqs))
-    fig, axes = plt.subplots(3, 1, figsize=(max(6.0, 1.6 * len(seqs) + 3), 9), constrained_layout=True)
+    fig, axes = plt.subplots(3, 1, figsize=(max(8.0, 1.6 * len(seqs) + 3), 9.5), constrained_layout=True)
     for ax, (col, title, log) in zip(axes, (("ate_rmse_m", "ATE RMSE (m)", True),
                                             ("rpe_trans_rmse_m", "RPE translation RMSE (m, 1 frame)", True),
                                             ("mean_ms", "mean ms per frame", False))):
@@ -434,7 +434,7 @@ def plot_bars(rows: list[dict], path: Path) -> bool:
             ax.set_yscale("log")
         ax.grid(True, axis="y", alpha=0.3)
     handles, names = axes[0].get_legend_handles_labels()
-    fig.legend(handles, names, loc="outside upper center", ncol=min(len(systems), 6), fontsize="small")
+    fig.legend(handles, names, loc="outside upper center", ncol=min(len(systems), 3), fontsize="small")
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
