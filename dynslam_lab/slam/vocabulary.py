@@ -47,6 +47,7 @@ trained on the project's synthetic scenes (:func:`default_vocabulary`), and
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -296,16 +297,35 @@ class Vocabulary:
         return BowVector(uniq, w / total if total > 0 else w)
 
     # ------------------------------------------------------------------ files
-    def save(self, path: str | Path) -> Path:
-        """Write the vocabulary as one compressed ``.npz``; returns the path."""
+    def save(self, path: str | Path, recipe: str | None = None) -> Path:
+        """Write the vocabulary as one compressed ``.npz``, atomically; returns the path.
+
+        ``recipe`` (text, e.g. the TOML recipe of ``dynslam vocab build``) is stored beside the
+        arrays so the file says how it was made. An existing file is replaced only when it is a
+        vocabulary itself (nothing else is overwritten).
+        """
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        if path.exists():
+            try:
+                with np.load(path, allow_pickle=False) as old:
+                    is_voc = all(k in old.files for k in _KEYS)
+            except (OSError, EOFError, ValueError, AttributeError):
+                is_voc = False
+            if not is_voc:
+                raise ValueError(f"{path}: exists and is not a vocabulary file; refusing to overwrite it")
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {k: getattr(self, k) for k in _ARRAYS}
-        np.savez_compressed(
-            path, format_version=np.int64(_FORMAT_VERSION), n_images=np.int64(self.n_images), **arrays
-        )
+        extra = {} if recipe is None else {"recipe": np.array(recipe)}
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+        try:
+            np.savez_compressed(
+                tmp, format_version=np.int64(_FORMAT_VERSION), n_images=np.int64(self.n_images), **arrays, **extra
+            )
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
 
