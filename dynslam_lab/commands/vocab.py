@@ -25,7 +25,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     sub = p.add_subparsers(dest="vocab_command", metavar="ACTION")
     b = sub.add_parser("build", help="train a vocabulary on the frames of one or more sequences (TUM layout)")
-    b.add_argument("sequences", nargs="+", metavar="SEQDIR", help="sequence folders (TUM layout: rgb.txt, depth.txt)")
+    b.add_argument("sequences", nargs="*", metavar="SEQDIR", help="sequence folders (TUM layout: rgb.txt, depth.txt)")
+    b.add_argument("--recipe", help="a TOML recipe of training sources instead of SEQDIRs "
+                   "(the shipped vocabulary: dynslam_lab/resources/vocabulary_recipe.toml)")
     b.add_argument("--out", required=True, help="output .npz file")
     b.add_argument("--stride", type=int, default=5, help="use every N-th frame (default 5)")
     b.add_argument("--max-frames", type=int, default=None, help="at most this many frames per sequence")
@@ -65,6 +67,19 @@ def static_descriptors(frame, n_features: int):
 
 def run_build(args: argparse.Namespace) -> int:
     from tqdm import tqdm
+
+    if args.recipe:
+        from ..slam.vocabulary_recipe import build_vocabulary, read_recipe
+
+        if args.sequences:
+            raise ValueError("give either SEQDIRs or --recipe, not both")
+        recipe = read_recipe(args.recipe)
+        voc = build_vocabulary(recipe)
+        out = voc.save(args.out, recipe=recipe.text)
+        print(f"{voc} -> {out} ({out.stat().st_size / 1e6:.2f} MB; recipe stored inside)")
+        return 0
+    if not args.sequences:
+        raise ValueError("give SEQDIRs to train on, or --recipe FILE")
 
     from ..datasets.tum import TumSequence
     from ..slam.vocabulary import VocabularyConfig, train_vocabulary
