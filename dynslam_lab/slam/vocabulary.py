@@ -200,12 +200,32 @@ def bow_score(a: BowVector, b: BowVector) -> float:
 
 
 def bow_score_many(vectors: list[BowVector], n_words: int) -> np.ndarray:
-    """Similarity matrix ``(K, K)`` of the L1 score between all pairs of vectors (for plots)."""
-    dense = np.stack([v.dense(n_words) for v in vectors]) if vectors else np.zeros((0, n_words))
-    # min(a, b) summed over words, one row at a time to bound memory at K * n_words.
-    out = np.empty((len(dense), len(dense)))
-    for i in range(len(dense)):  # loop over keyframes (K), not keypoints
-        out[i] = np.minimum(dense[i][None, :], dense).sum(axis=1)
+    """Similarity matrix ``(K, K)`` of the L1 score between all pairs of vectors (for plots).
+
+    Sparse: the entries ``(word, vector, weight)`` sorted by word give each word's posting list;
+    row ``i`` sums ``min`` over the posting lists of its words only (so a 10^6-word vocabulary costs
+    no more than a small one).
+    """
+    k = len(vectors)
+    out = np.zeros((k, k))
+    if k == 0:
+        return out
+    words = np.concatenate([v.words for v in vectors]).astype(np.int64)
+    if len(words) and (words.min() < 0 or words.max() >= n_words):
+        raise ValueError(f"bow_score_many: word ids outside [0, {n_words})")
+    owner = np.repeat(np.arange(k), [len(v) for v in vectors])
+    weight = np.concatenate([v.weights for v in vectors]).astype(np.float64)
+    order = np.argsort(words, kind="stable")
+    w_sorted, o_sorted, x_sorted = words[order], owner[order], weight[order]
+    for i, v in enumerate(vectors):  # loop over vectors (K), each row vectorised
+        if len(v) == 0:
+            continue
+        lo = np.searchsorted(w_sorted, v.words, side="left")
+        hi = np.searchsorted(w_sorted, v.words, side="right")
+        length = hi - lo
+        idx = np.repeat(lo - (np.cumsum(length) - length), length) + np.arange(int(length.sum()))
+        vals = np.minimum(np.repeat(v.weights, length), x_sorted[idx])
+        out[i] = np.bincount(o_sorted[idx], weights=vals, minlength=k)
     return out
 
 

@@ -144,6 +144,7 @@ def training_descriptors(recipe: Recipe, log=print) -> tuple[list[np.ndarray], l
                 files += sorted(glob.glob(p))
             if not files:
                 notes.append(f"images {s['paths']}: none found, skipped")
+                log(notes[-1])
                 continue
             for f in files:
                 img = cv2.imread(f, cv2.IMREAD_GRAYSCALE)

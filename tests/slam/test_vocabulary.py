@@ -331,3 +331,18 @@ def test_vocab_build_command(tmp_path, capsys):
     assert "--stride" in capsys.readouterr().err
     assert main(["vocab", "info", str(tmp_path / "nope.npz")]) == 1
     assert "nope.npz" in capsys.readouterr().err
+
+
+def test_bow_score_many_equals_pairwise_scores():
+    """The sparse similarity matrix against the pairwise L1 score (DBoW2 eq. 2), empty vectors included."""
+    rng = np.random.default_rng(0)
+    vectors = []
+    for _ in range(20):
+        w = np.unique(rng.integers(0, 500, rng.integers(0, 80)))
+        x = rng.random(len(w))
+        vectors.append(BowVector(w, x / max(x.sum(), 1e-12)))
+    S = bow_score_many(vectors, 500)
+    ref = np.array([[bow_score(a, b) for b in vectors] for a in vectors])
+    np.testing.assert_allclose(S, ref, atol=1e-12)
+    with pytest.raises(ValueError, match="word ids"):
+        bow_score_many([BowVector(np.array([600]), np.array([1.0]))], 500)
