@@ -278,14 +278,20 @@ def apply_correction(mp, corr: Correction) -> list[int]:
     for k, Dk in D.items():
         kf = mp.keyframes[k]
         kf.T_w_c = Dk @ kf.T_w_c
-    # points move with their reference keyframe (grouped by reference: one transform each)
+    # points move rigidly with their reference keyframe (grouped by reference: one transform each);
+    # their viewing direction turns with it and their distance to it is kept, so the scale range
+    # (min/max distance) stays valid without re-gathering every observation (ORB-SLAM2 recomputes
+    # them; local mapping does it here for the points it touches next)
     X = mp.xyz[pts]
+    N = mp.normal[pts]
     for r in np.unique(ref):  # loop over keyframes
         if r < 0 or int(r) not in D:
             continue
         sel = ref == r
         X[sel] = transform_points(D[int(r)], X[sel])
+        N[sel] = N[sel] @ D[int(r)][:3, :3].T
     mp.xyz[pts] = X
+    mp.normal[pts] = N
     if len(corr.point_ids):  # global BA: its points take its positions (the alive ones)
         ok = mp.alive[corr.point_ids]
         mp.xyz[corr.point_ids[ok]] = corr.xyz[ok]
@@ -308,8 +314,7 @@ def apply_correction(mp, corr: Correction) -> list[int]:
         if a in mp.keyframes and b in mp.keyframes:
             mp.keyframes[a].loop_edges.add(b)
             mp.keyframes[b].loop_edges.add(a)
-    mp.invalidate()
-    mp.update_geometry(mp.point_ids())
+    mp.invalidate()  # (global BA moves points by millimetres: their viewing geometry is kept)
     corr.stats["fused"] = n_fused
     return sorted(D)
 
