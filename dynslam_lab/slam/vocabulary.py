@@ -39,9 +39,9 @@ vector is L1-normalised.
 in ``[0, 1]``; the second form (true for non-negative unit-L1 vectors) only needs the words
 the two images share, which is what the inverted index of the keyframe database delivers.
 
-A vocabulary is saved as one ``.npz`` (arrays below); the package ships a small default one
-trained on the project's synthetic scenes (:func:`default_vocabulary`), and
-``dynslam vocab build SEQDIR...`` trains one on any data.
+A vocabulary is saved as one ``.npz`` (arrays below); the package ships a default one trained on
+varied imagery by the recipe ``resources/vocabulary_recipe.toml`` (:func:`default_vocabulary`;
+:mod:`.vocabulary_recipe`), and ``dynslam vocab build SEQDIR...`` trains one on any data.
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ __all__ = [
     "DEFAULT_VOCABULARY_FILE",
 ]
 
-DEFAULT_VOCABULARY_FILE = "orb_vocabulary_synthetic.npz"  # in dynslam_lab/resources/
+DEFAULT_VOCABULARY_FILE = "orb_vocabulary.npz"  # in dynslam_lab/resources/, built from vocabulary_recipe.toml
 _FORMAT_VERSION = 1
 
 
@@ -395,7 +395,7 @@ _DEFAULT_CACHE: dict[str, Vocabulary] = {}
 
 
 def default_vocabulary() -> Vocabulary:
-    """The small vocabulary shipped in ``dynslam_lab/resources/`` (trained on synthetic scenes).
+    """The vocabulary shipped in ``dynslam_lab/resources/`` (built by ``resources/vocabulary_recipe.toml``).
 
     Loaded once per process and shared (a :class:`Vocabulary` is immutable).
     """
