@@ -19,6 +19,7 @@ class LoopClosingConfig:
     min_keyframes_between: int = 10  # no loop search in the first / after a loop for this many keyframes; ORB-SLAM2: 10
     consistency_threshold: int = 3  # consecutive consistent detections; ORB-SLAM2 mnCovisibilityConsistencyTh: 3
     min_neighbour_weight: int = 15  # covisibility weight of the neighbours giving s_min; ORB-SLAM2 connection threshold: 15
+    exclude: str = "covisible"  # keyframes never candidates: "covisible" (any shared point; ours) or "connected" (weight >= 15; ORB-SLAM2)
     # --- verification (ORB-SLAM2 ComputeSim3, SE(3) for RGB-D)
     match_ratio: float = 0.75  # best/second Hamming ratio of the loop matches; ORB-SLAM2 ComputeSim3: 0.75
     min_matches: int = 20  # descriptor matches needed before RANSAC; ORB-SLAM2: 20
@@ -50,6 +51,8 @@ class LoopClosingConfig:
     pose_graph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
 
     def __post_init__(self) -> None:
+        if self.exclude not in ("covisible", "connected"):
+            raise ValueError(f"LoopClosingConfig.exclude must be 'covisible' or 'connected', got {self.exclude!r}")
         if not 0 < self.match_ratio <= 1:
             raise ValueError(f"LoopClosingConfig.match_ratio must be in (0, 1], got {self.match_ratio}")
         for name in ("min_matches", "min_inliers", "ransac_iterations", "min_map_matches", "consistency_threshold",

@@ -115,8 +115,12 @@ class LoopDetector:
             c = covis(i)
             return sorted(c, key=lambda k: (-c[k], k))[: cfg.query.group_size]
 
+        # ORB-SLAM2 excludes the connected keyframes (weight >= 15); "covisible" excludes any that
+        # shares a point (stricter: fewer candidates near the query, but a few old points matched
+        # again near a revisit hide the loop keyframe)
+        excluded = set(cov) if cfg.exclude == "covisible" else set(connected(kf.id))
         cands = self.database.detect_loop_candidates(
-            bow, exclude=set(cov) | {kf.id}, min_score=min_score, neighbours=best, config=cfg.query
+            bow, exclude=excluded | {kf.id}, min_score=min_score, neighbours=best, config=cfg.query
         )
         self.last_candidates = cands
         if not cands:
