@@ -62,8 +62,11 @@ FILES = {
     "dense_map": "map.ply",
 }
 
-#: Columns of ``timing.csv`` after ``frame, timestamp`` (ms).
-STAGES = ("orb", "detect", "screen", "track", "local_mapping", "loop", "total")
+#: Columns of ``timing.csv`` after ``frame, timestamp`` (ms). ``read``: waiting for the frame's
+#: images (what the read-ahead did not hide); ``total``: ``System.process``; ``wall``: the frame's
+#: wall time in the run loop (read + process). Detection runs beside ORB extraction, so the stages
+#: may sum to more than ``total``.
+STAGES = ("read", "orb", "detect", "screen", "track", "local_mapping", "loop", "total", "wall")
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:

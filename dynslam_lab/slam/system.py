@@ -3,7 +3,8 @@
 
 Per frame::
 
-    ORB extraction -> detector.detect(frame) -> screener.screen(frame, uv, detections)
+    ORB extraction || detector.detect(frame)  (side by side: the detector in a worker thread)
+      -> screener.screen(frame, uv, detections)
       -> tracking with the static keypoints only -> keyframe decision
       -> local mapping (new points, fusion, culling, local BA) for a new keyframe
       -> loop_closer.on_keyframe(keyframe, map) for a new keyframe
@@ -19,6 +20,8 @@ keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_
 from __future__ import annotations
 
 import time
+import weakref
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -55,7 +58,8 @@ class FrameResult:
         ``relocalization``, ``initialization`` or ``""``).
     n_features, n_dynamic, n_inliers : keypoints, keypoints judged dynamic, pose inliers.
     timings_ms : per stage milliseconds (``orb``, ``detect``, ``screen``, ``track``,
-        ``local_mapping``, ``loop``, ``total``).
+        ``local_mapping``, ``loop``, ``total`` = the wall time of ``process``; ``detect`` overlaps
+        ``orb``, so the stages may sum to more than ``total``).
     uv : ``(N, 2)`` keypoints; dynamic : ``(N,)`` bool verdict used.
     table : the screener's keypoint table (or None); region_mask : ``(H, W)`` bool or None.
     dynamic_xyz : ``(D, 3)`` world points of dynamic keypoints with depth (tracked frames only).
@@ -138,6 +142,7 @@ class System:
         self.loop_results: list[Any] = []
         self.loop_edges: list[tuple[int, int]] = []
         self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
+        self._detect_pool: ThreadPoolExecutor | None = None  # one worker: detection beside ORB
 
     def effective_config(self):
         """The configuration every stage actually runs with: :attr:`config` with the detection,
@@ -153,12 +158,35 @@ class System:
         return replace(self.config, **changes)
 
     # --------------------------------------------------------------- helpers
-    def _screen(self, frame: Frame, feats: Features, t: dict) -> tuple[np.ndarray, Any, Any]:
-        detections = None
-        if self.detector is not None:
-            t0 = time.perf_counter()
-            detections = self.detector.detect(frame)
-            t["detect"] = 1e3 * (time.perf_counter() - t0)
+    def _detect(self, frame: Frame) -> tuple[Any, float]:
+        """The detector on one frame, and its time (ms; in whichever thread runs it)."""
+        t0 = time.perf_counter()
+        detections = self.detector.detect(frame)
+        return detections, 1e3 * (time.perf_counter() - t0)
+
+    def _orb_and_detect(self, frame: Frame, t: dict) -> tuple[Features, Any]:
+        """ORB extraction and detection of one frame; with ``tracking.overlap_detection`` the
+        detector runs in a worker thread meanwhile (onnxruntime and OpenCV release the GIL), so
+        ``t["orb"] + t["detect"]`` may exceed the time both took."""
+        future = None
+        if self.detector is not None and self.config.tracking.overlap_detection:
+            if self._detect_pool is None:
+                self._detect_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-detect")
+                weakref.finalize(self, self._detect_pool.shutdown, wait=False)
+            future = self._detect_pool.submit(self._detect, frame)
+        t0 = time.perf_counter()
+        try:
+            feats = extract_features(frame.gray, self.config.orb)
+        finally:
+            t["orb"] = 1e3 * (time.perf_counter() - t0)
+            detections = None
+            if future is not None:  # waited for even when ORB failed: one frame's detection at a time
+                detections, t["detect"] = future.result()
+        if self.detector is not None and future is None:
+            detections, t["detect"] = self._detect(frame)
+        return feats, detections
+
+    def _screen(self, frame: Frame, feats: Features, detections: Any, t: dict) -> tuple[np.ndarray, Any]:
         dynamic = np.zeros(len(feats), bool)
         table = None
         if self.screener is not None:
@@ -168,7 +196,7 @@ class System:
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
             if len(dynamic) != len(feats):
                 raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
-        return dynamic, table, detections
+        return dynamic, table
 
     def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False) -> tuple[KeyFrame, np.ndarray]:
         """Insert a keyframe made from ``sf`` with new points from depth (all of them at the
@@ -211,10 +239,8 @@ class System:
         t_start = time.perf_counter()
         loop_errors: list[str] = []
         self._apply_loop_corrections(t, loop_errors)
-        t0 = time.perf_counter()
-        feats = extract_features(frame.gray, self.config.orb)
-        t["orb"] = 1e3 * (time.perf_counter() - t0)
-        dynamic, table, _ = self._screen(frame, feats, t)
+        feats, detections = self._orb_and_detect(frame, t)
+        dynamic, table = self._screen(frame, feats, detections, t)
         tc = self.config.tracking
         sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
@@ -239,7 +265,7 @@ class System:
         t["track"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None and res.method != "initialization":
             t0 = time.perf_counter()
-            res.local_mapping = self.mapper.process(kf, new_pts)
+            res.local_mapping = self.mapper.process(kf, new_pts, capped=self.tracker.in_bad_stretch(sf.index))
             t["local_mapping"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None:
             res.is_keyframe, res.keyframe_id = True, kf.id
