@@ -50,7 +50,6 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -138,8 +137,7 @@ def export_vocabulary(out: Path) -> tuple[Path | None, str | None]:
     target = out / VOCABULARY_FILE
     if target.is_file():
         return target, None
-    npz = resources.files("dynslam_lab") / "resources" / "orb_vocabulary_synthetic.npz"
-    cmd = [sys.executable, "-m", "dynslam_lab", "vocab", "export", str(npz), "--format", "dbow2", "--out", str(target)]
+    cmd = [sys.executable, "-m", "dynslam_lab", "vocab", "export", "default", "--format", "dbow2", "--out", str(target)]
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode != 0 or not target.is_file():
         last = (p.stderr or p.stdout).strip().splitlines()

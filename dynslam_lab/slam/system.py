@@ -141,6 +141,7 @@ class System:
         self.lost_frames: list[int] = []
         self.loop_results: list[Any] = []
         self.loop_edges: list[tuple[int, int]] = []
+        self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
         self._detect_pool: ThreadPoolExecutor | None = None  # one worker: detection beside ORB
 
     def effective_config(self):
@@ -236,13 +237,15 @@ class System:
         """Track one RGB-D frame; returns its :class:`FrameResult`."""
         t: dict[str, float] = {"orb": 0.0, "detect": 0.0, "screen": 0.0, "track": 0.0, "local_mapping": 0.0, "loop": 0.0}
         t_start = time.perf_counter()
+        loop_errors: list[str] = []
+        self._apply_loop_corrections(t, loop_errors)
         feats, detections = self._orb_and_detect(frame, t)
         dynamic, table = self._screen(frame, feats, detections, t)
         tc = self.config.tracking
         sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
                           n_dynamic=int(dynamic.sum()), uv=feats.uv, dynamic=dynamic, table=table,
-                          region_mask=getattr(table, "region_mask", None))
+                          region_mask=getattr(table, "region_mask", None), error="; ".join(loop_errors))
         t0 = time.perf_counter()
         kf = None
         new_pts = np.zeros(0, np.int64)
@@ -277,15 +280,15 @@ class System:
                     loop = None
                     res.error = f"loop closing failed: {type(exc).__name__}: {exc}"
                 self.map.invalidate()
-                t["loop"] = 1e3 * (time.perf_counter() - t0)
+                t["loop"] += 1e3 * (time.perf_counter() - t0)
                 if loop is not None:
                     res.loop = loop
                     self.loop_results.append(loop)
                     ids = [int(i) for i in np.asarray(getattr(loop, "keyframe_ids", ()), dtype=np.int64).reshape(-1)]
                     if len(ids) >= 2:
                         self.loop_edges.append((ids[0], ids[1]))
-                    if T_ref_c is not None and kf.id in self.map.keyframes:
-                        # Re-anchor the current frame on its corrected keyframe.
+                    if getattr(loop, "applied", True) and T_ref_c is not None and kf.id in self.map.keyframes:
+                        # Corrected at once (no worker): re-anchor the current frame on its keyframe.
                         sf.T_w_c = self.map.keyframes[kf.id].T_w_c @ T_ref_c
         if sf.T_w_c is not None:
             ref = self.tracker.ref_kf
@@ -303,6 +306,31 @@ class System:
         res.timings_ms = t
         return res
 
+    def _apply_loop_corrections(self, t: dict, errors: list, wait: bool = False) -> None:
+        """Apply the loop corrections the loop closer's worker has finished (all of them when ``wait``),
+        between two frames, and move the last tracked frame with its reference keyframe (ORB-SLAM2
+        keeps each frame relative to its reference keyframe for this)."""
+        if self.loop_closer is None or not getattr(self.loop_closer, "busy", False):
+            return
+        t0 = time.perf_counter()
+        try:
+            applied = self.loop_closer.poll(self.map, wait=wait)
+        except Exception as exc:  # a failed correction must not stop tracking
+            applied = []
+            errors.append(f"loop correction failed: {type(exc).__name__}: {exc}")
+        if applied:
+            self.map.invalidate()
+            last = self.tracker.last
+            if last is not None and last.T_w_c is not None and self._anchors:
+                _, ref, T_ref_c = self._anchors[-1]
+                last.T_w_c = self.map.keyframe_pose(ref) @ T_ref_c
+        t["loop"] = t.get("loop", 0.0) + 1e3 * (time.perf_counter() - t0)
+
+    def finish_loop_closing(self) -> None:
+        """Wait for the loop closer's pending corrections and apply them (the outputs call this first);
+        a correction that failed is recorded in :attr:`loop_errors`."""
+        self._apply_loop_corrections({}, self.loop_errors, wait=True)
+
     def mark_lost(self, index: int) -> None:
         """Record a frame that could not be processed at all (unreadable image)."""
         self.lost_frames.append(int(index))
@@ -310,6 +338,7 @@ class System:
     # --------------------------------------------------------------- outputs
     def trajectory(self) -> Trajectory:
         """Every tracked frame, ``T_w_c = T_w_ref T_ref_c`` with the current keyframe poses."""
+        self.finish_loop_closing()
         if not self._anchors:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         ts = np.array([a[0] for a in self._anchors])
@@ -323,6 +352,7 @@ class System:
 
     def keyframe_arrays(self) -> dict[str, np.ndarray]:
         """Arrays of ``keyframes.npz``: ids, frame_index, timestamps, poses, loop_edges."""
+        self.finish_loop_closing()
         kfs = [self.map.keyframes[k] for k in sorted(self.map.keyframes)]
         edges = set(self.loop_edges)
         for kf in kfs:
@@ -338,5 +368,6 @@ class System:
 
     def map_point_arrays(self) -> dict[str, np.ndarray]:
         """Arrays of ``map_points.npz``: xyz, rgb, n_obs of the alive points."""
+        self.finish_loop_closing()
         ids = self.map.point_ids()
         return {"xyz": self.map.xyz[ids].copy(), "rgb": self.map.rgb[ids].copy(), "n_obs": self.map.n_obs(ids)}
