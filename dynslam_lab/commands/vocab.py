@@ -29,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--recipe", help="a TOML recipe of training sources instead of SEQDIRs "
                    "(the shipped vocabulary: dynslam_lab/resources/vocabulary_recipe.toml)")
     b.add_argument("--out", required=True, help="output .npz file")
+    b.add_argument("--force", action="store_true", help="replace an existing vocabulary file of that name")
     b.add_argument("--stride", type=int, default=5, help="use every N-th frame (default 5)")
     b.add_argument("--max-frames", type=int, default=None, help="at most this many frames per sequence")
     b.add_argument("--branching", type=int, default=10, help="children per node k (default 10, as ORB-SLAM2)")
@@ -43,11 +44,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     im = sub.add_parser("import", help="read a DBoW2 text vocabulary (ORB-SLAM2/3's ORBvoc.txt) into an .npz")
     im.add_argument("path", help="DBoW2 text file (python -m data_fetch get orbvoc, then the extracted ORBvoc.txt)")
     im.add_argument("--out", required=True, help="output .npz file")
+    im.add_argument("--force", action="store_true", help="replace an existing vocabulary file of that name")
     im.set_defaults(func=run_import)
     ex = sub.add_parser("export", help="write a vocabulary in another format (DBoW2 text: loads in ORB-SLAM2/3)")
     ex.add_argument("path", help="vocabulary .npz, or 'default' (the one shipped with the package)")
     ex.add_argument("--format", choices=("dbow2",), default="dbow2", help="output format (default dbow2: DBoW2 text)")
     ex.add_argument("--out", required=True, help="output file (e.g. voc.txt)")
+    ex.add_argument("--force", action="store_true", help="replace an existing vocabulary file of that name")
     ex.set_defaults(func=run_export)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -67,6 +70,10 @@ def static_descriptors(frame, n_features: int):
 
 def run_build(args: argparse.Namespace) -> int:
     from tqdm import tqdm
+
+    from ..runs import check_output_file
+
+    check_output_file(args.out, ".npz", force=args.force)  # before the long work: never over a folder or a user's file
 
     if args.recipe:
         from ..slam.vocabulary_recipe import build_vocabulary, read_recipe
@@ -113,8 +120,10 @@ def _load(path: str):
 
 
 def run_import(args: argparse.Namespace) -> int:
+    from ..runs import check_output_file
     from ..slam.vocabulary_io import read_dbow2_text
 
+    check_output_file(args.out, ".npz", force=args.force)
     voc = read_dbow2_text(args.path)
     out = voc.save(args.out)
     print(f"{voc} -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
@@ -122,8 +131,10 @@ def run_import(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from ..runs import check_output_file
     from ..slam.vocabulary_io import write_dbow2_text
 
+    check_output_file(args.out, ".txt", force=args.force)
     voc = _load(args.path)
     out = write_dbow2_text(voc, args.out)
     print(f"{voc} -> {out} (DBoW2 text, {out.stat().st_size / 1e6:.2f} MB; ORB-SLAM2/3 load it with loadFromTextFile)")

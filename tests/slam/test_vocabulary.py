@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -336,8 +337,16 @@ def test_vocab_build_command(tmp_path, capsys):
     assert main(["vocab", "info", str(out)]) == 0
     assert "words per level" in capsys.readouterr().out
     # bad input: one clear line naming the parameter
-    assert main(["vocab", "build", str(seq), "--out", str(out), "--stride", "0"]) == 1
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path / "other.npz"), "--stride", "0"]) == 1
     assert "--stride" in capsys.readouterr().err
+    # never over a folder (once wrote FOLDER.npz), a user's file, or without the suffix
+    before = out.read_bytes()
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err and not Path(str(tmp_path) + ".npz").exists()
+    assert main(["vocab", "build", str(seq), "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path / "vocab")]) == 2
+    assert ".npz" in capsys.readouterr().err and not (tmp_path / "vocab.npz").exists()
     assert main(["vocab", "info", str(tmp_path / "nope.npz")]) == 1
     assert "nope.npz" in capsys.readouterr().err
 
