@@ -92,7 +92,7 @@ ERROR_FILE = "error.txt"
 TIMING_PREFIXES = ("timing_median_ms.", "timing_mean_ms.", "wall_time_s")
 #: Keys of ``summary.json`` that are not metrics (identities, lists, paths, the config).
 _NOT_METRICS = ("schema_version", "complete", "sequence", "lost_frames", "loop_edges", "errors", "pipeline",
-                "config", "dense_map", "dense_map_error", "evaluation_error")
+                "config", "dense_map", "dense_map_error", "evaluation_error", "files", "run_id", "state", "stopped")
 #: Seconds between rewrites of results.csv while the sweep runs.
 _TABLE_EVERY_S = 5.0
 
