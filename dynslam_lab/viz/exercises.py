@@ -16,8 +16,8 @@ __all__ = ["check"]
 
 
 def check(exercise: str, answer: Any, expected: Any = None, *, test: Callable[[Any], bool] | None = None,
-          rtol: float = 1e-6, atol: float = 1e-9, hint: str = "") -> bool:
-    """Assert the reader's ``answer`` to ``exercise``; False (and a note) while it is ``None``.
+          rtol: float = 1e-6, atol: float = 1e-9, hint: str = "") -> None:
+    """Assert the reader's ``answer`` to ``exercise``; only a note while it is ``None``.
 
     Parameters
     ----------
@@ -35,7 +35,7 @@ def check(exercise: str, answer: Any, expected: Any = None, *, test: Callable[[A
     if answer is None:
         print(f"Exercise {exercise}: not answered yet (replace the None above; the solution is in "
               f"notebooks/solutions/)")
-        return False
+        return
     if test is not None:
         ok = bool(test(answer))
     elif isinstance(expected, (int, float, np.number, np.ndarray, list, tuple)) and not isinstance(expected, bool):
@@ -45,4 +45,3 @@ def check(exercise: str, answer: Any, expected: Any = None, *, test: Callable[[A
         ok = answer == expected
     assert ok, f"Exercise {exercise}: {answer!r} is not right" + (f" ({hint})" if hint else "")
     print(f"Exercise {exercise}: correct")
-    return True
