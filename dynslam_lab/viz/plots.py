@@ -300,7 +300,7 @@ def plot_keypoints(image: np.ndarray, uv: np.ndarray, dynamic: np.ndarray | None
 def plot_keypoint_stages(image: np.ndarray, uv: np.ndarray, stages: Mapping[str, np.ndarray],
                          dynamic: np.ndarray | None = None, restored: np.ndarray | None = None,
                          region_mask: np.ndarray | None = None, ax=None, title: str | None = None,
-                         size: float = 16.0):
+                         size: float = 20.0):
     """Keypoints with one ring per screening stage that flagged them (several stages: nested rings).
 
     Parameters
@@ -338,7 +338,7 @@ def plot_keypoint_stages(image: np.ndarray, uv: np.ndarray, stages: Mapping[str,
         tint[np.asarray(region_mask, bool)] = (*[c / 255 for c in (220, 0, 220)], 0.18)
         ax.imshow(tint)
     stat = ~dyn
-    ax.scatter(uv[stat, 0], uv[stat, 1], s=size * 0.35, c=VERDICT_COLORS["static"], linewidths=0,
+    ax.scatter(uv[stat, 0], uv[stat, 1], s=size * 0.6, c=VERDICT_COLORS["static"], linewidths=0,
                label=f"static ({int(stat.sum())})")
     order = [k for k in STAGES if k in flags] + [k for k in flags if k not in STAGES]
     ring = 0
@@ -346,12 +346,12 @@ def plot_keypoint_stages(image: np.ndarray, uv: np.ndarray, stages: Mapping[str,
         sel = flags[k]
         if k == "restored" or not sel.any():
             continue
-        ax.scatter(uv[sel, 0], uv[sel, 1], s=size * (1 + 1.6 * ring) ** 2 / 2, facecolors="none",
-                   edgecolors=hex_color(k) if k in STAGES else "0.5", linewidths=1.3, label=f"{k} ({int(sel.sum())})")
+        ax.scatter(uv[sel, 0], uv[sel, 1], s=2 * size * (1 + 0.7 * ring) ** 2, facecolors="none",
+                   edgecolors=hex_color(k) if k in STAGES else "0.5", linewidths=1.5, label=f"{k} ({int(sel.sum())})")
         ring += 1
     if restored is not None and np.any(restored):
         r = np.asarray(restored, bool)
-        ax.scatter(uv[r, 0], uv[r, 1], s=size * 1.5, marker="s", facecolors="none", edgecolors=hex_color("restored"),
+        ax.scatter(uv[r, 0], uv[r, 1], s=2 * size, marker="s", facecolors="none", edgecolors=hex_color("restored"),
                    linewidths=1.3, label=f"restored ({int(r.sum())})")
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
