@@ -344,7 +344,7 @@ def plot_keypoint_stages(image: np.ndarray, uv: np.ndarray, stages: Mapping[str,
     ring = 0
     for k in order:
         sel = flags[k]
-        if k == "restored" or not sel.any():
+        if k in ("restored", "restoration") or not sel.any():  # given back: the cyan squares below
             continue
         ax.scatter(uv[sel, 0], uv[sel, 1], s=2 * size * (1 + 0.7 * ring) ** 2, facecolors="none",
                    edgecolors=hex_color(k) if k in STAGES else "0.5", linewidths=1.5, label=f"{k} ({int(sel.sum())})")
