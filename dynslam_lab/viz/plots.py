@@ -440,7 +440,7 @@ def plot_ablation(df, title: str | None = None):
     a1.invert_yaxis()
     a1.set_xlim(0, 1.05)
     a1.set_xlabel("keypoints judged dynamic, against the truth")
-    a1.legend(loc="lower right", fontsize="small")
+    a1.legend(loc="upper right", fontsize="small")
     a1.grid(True, axis="x", alpha=0.3)
     if title:
         fig.suptitle(title)
