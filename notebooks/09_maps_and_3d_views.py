@@ -128,8 +128,8 @@ print(f"{len(xyz0)} static points from one keyframe (every {cfg.stride}nd pixel)
 views = truth_views(root, keyframes)  # (frame with exact depth, true T_w_c, moving mask) per keyframe
 
 
-def keyframe_stream(mask=True, short_px=0):
-    for i in keyframes:
+def keyframe_stream(mask=True, short_px=0, every=1):
+    for i in keyframes[::every]:
         f = seq[i]
         yield f, seq.gt_pose(i), (moving_mask(f, short_px) if mask else None)
 
@@ -156,7 +156,8 @@ for ax, (name, m) in zip(axes, maps.items()):
 # ## 3. The filters, by hand
 #
 # Real segmentation masks stop short of the outline. Here every mask is shrunk by 8 pixels
-# (a network's mask), the voxel filter is at 2 cm and the multi-view filter is *off*
+# (a network's mask), every other keyframe is used (a quicker redraw), the voxel filter is at
+# 2 cm and the multi-view filter is *off*
 # (`min_observations` = 1). Right: the corridor in front of the desk seen from the camera's side
 # (points with y < 0.9 m), where the walkers passed. Grow the masks (dilation) or turn the
 # multi-view filter on, and watch the walkers' ghosts disappear.
@@ -165,7 +166,7 @@ for ax, (name, m) in zip(axes, maps.items()):
 def draw_filters(voxel_size=0.02, sor_std_ratio=2.0, dilate_px=3, min_observations=1):
     c = dataclasses.replace(cfg, voxel_size=voxel_size, sor_std_ratio=sor_std_ratio, dilate_px=dilate_px,
                             min_observations=min_observations)
-    m = build_dense_map(keyframe_stream(True, short_px=8), c)
+    m = build_dense_map(keyframe_stream(True, short_px=8, every=2), c)  # every other keyframe: a quick redraw
     q = map_quality(m.xyz, views)
     fig, axes = plt.subplots(1, 2, figsize=(14, 4.8), constrained_layout=True, gridspec_kw={"width_ratios": [1, 1.15]})
     top_view(m.xyz, m.rgb, axes[0], f"{len(m.xyz)} points, {100 * q.dynamic_fraction:.2f} % on people, "
@@ -189,7 +190,7 @@ figure_explorer(draw_filters, name="09 dense-map filters",
 
 # %% [markdown]
 # **What to look for**: at 3 px of dilation the walkers' outlines still stand in the corridor
-# as ghost figures (right), a few percent of the map; at 8 px or more they are gone, at the
+# as ghost figures (right), about one percent of the map; at 8 px or more they are gone, at the
 # price of the floor next to the walkers. `min_observations` = 2 removes them too, without
 # growing any mask. A larger voxel thins the map; a small $\alpha$ eats into thin structures.
 

@@ -10,7 +10,11 @@ import pytest
 from dynslam_lab.geometry.se3 import make_pose, so3_exp
 from tests.fixtures.demo_run import write_demo_run
 from dynslam_lab.viz.viser_scene import (
+    COLORS,
+    VIEWER_FOV_Y,
     SceneConfig,
+    dynamic_pose_index,
+    initial_view,
     build_scene,
     free_port,
     frustum_segments,
@@ -110,7 +114,7 @@ def test_layers_stream_in_stages(demo):
     them: tests/viz/test_view_browser.py checks that with a real browser)."""
     import time
 
-    cfg = SceneConfig(max_image_frustums=3, defer_layers=0.4, defer_dense=0.4)
+    cfg = SceneConfig(max_image_frustums=3, defer_layers=0.4, defer_dense=0.4, preview_dense_points=1000)
     server, h = start_viewer(demo, config=cfg)
     try:
         first = {"estimate", "ground_truth", "loops", "current"}
@@ -124,7 +128,9 @@ def test_layers_stream_in_stages(demo):
         while len(h.stage_seconds) < 2 and time.monotonic() - t0 < 10:  # stage 2 sent
             time.sleep(0.02)
         t_kf = time.monotonic() - t0
-        assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes and "dense" not in h.nodes
+        assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes
+        # a map larger than the preview: a seeded subset first, all of it in the next stage
+        assert np.asarray(h.nodes["dense"].points).shape == (1000, 3)
         assert h.wait_complete(10)
         t_dense = time.monotonic() - t0
         assert 0.3 < t_kf < 5 and t_dense - t_kf > 0.3, (t_kf, t_dense)
@@ -222,3 +228,83 @@ def test_view_command_serves_and_stops(demo, capsys):
     out = capsys.readouterr().out
     assert "120 poses, 12 keyframes, 500 map points, 5000 dense points" in out
     assert "open http://127.0.0.1:" in out
+
+
+def test_a_demo_size_dense_map_comes_with_the_keyframes(demo):
+    """At most preview_dense_points: the whole dense map is in the second stage (seconds after
+    the browser connects), and there is no third stage."""
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0, defer_layers=0.2, defer_dense=5.0))
+    try:
+        h.start_stream()
+        assert h.wait_complete(10), "no third stage to wait for"
+        assert len(h.stage_seconds) == 2
+        assert np.asarray(h.nodes["dense"].points).shape == (5000, 3)
+    finally:
+        h.close()
+        server.stop()
+
+
+def test_dynamic_points_follow_the_playback(demo):
+    """Only the dynamic points of frames within dynamic_window of the playback frame are drawn
+    (every frame of the demo run is tracked: frame index = pose index); all on demand."""
+    import numpy.testing as npt
+
+    with np.load(demo / "dynamic_points.npz") as z:
+        xyz, frame = z["xyz"], z["frame"]
+    run = load_run(demo)
+    np.testing.assert_array_equal(dynamic_pose_index(run), frame)
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0, dynamic_window=5))
+    try:
+        h.add_deferred()
+        for i in (0, 57, 119):
+            h.set_frame(i)
+            shown = np.asarray(h.nodes["dynamic"].points, np.float64)
+            want = xyz[np.abs(frame - i) <= 5]
+            assert len(shown) == len(want) and len(want) < len(xyz)
+            npt.assert_allclose(np.sort(shown, axis=0), np.sort(want, axis=0), atol=2e-3)  # viser keeps float16
+        h.dynamic.set_show_all(True)
+        assert len(np.asarray(h.nodes["dynamic"].points)) == len(xyz)
+    finally:
+        server.stop()
+
+
+def test_legend_names_every_layer_in_the_shared_colours(demo):
+    from dynslam_lab.viz.colors import hex_color
+
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0))
+    try:
+        rows = dict(h.legend_rows)
+        assert rows["estimated trajectory"] == hex_color(COLORS["estimate"])
+        assert rows["ground truth (aligned)"] == hex_color(COLORS["ground_truth"])
+        assert rows["keyframes"] == hex_color(COLORS["keyframe"])
+        assert any(k.startswith("keypoints judged dynamic") and v == hex_color(COLORS["dynamic"]) for k, v in rows.items())
+        assert "dense map (own colours)" in rows and "loop edges" in rows
+        assert hex_color(COLORS["estimate"]) in h.legend.content
+    finally:
+        server.stop()
+
+
+def test_initial_view_frames_the_whole_scene(demo):
+    """Projected with viser's 75 degree camera, the whole path and the bulk of the maps (the
+    2-98 percent box) land inside a 4:3 window, and fill a good part of it."""
+    run = load_run(demo)
+    eye, target, up = initial_view(run)
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    f = 0.5 / np.tan(VIEWER_FOV_Y / 2)  # image height 1, width 4/3
+
+    def project(P):
+        X = (P - eye) @ np.stack([right, down, fwd]).T
+        assert (X[:, 2] > 0).all(), "part of the scene behind the camera"
+        return np.stack([f * X[:, 0] / X[:, 2], f * X[:, 1] / X[:, 2]], axis=1)
+
+    maps = np.concatenate([run.map_xyz, run.dense_xyz])
+    lo, hi = np.percentile(maps, 2, axis=0), np.percentile(maps, 98, axis=0)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    uv = project(np.concatenate([run.trajectory.positions, corners]))
+    assert (np.abs(uv[:, 0]) <= 2 / 3).all() and (np.abs(uv[:, 1]) <= 0.5).all(), "the scene does not fit"
+    assert np.ptp(uv[:, 1]) > 0.4, "the scene fills less than 40 % of the picture height"
+    path = project(run.trajectory.positions)
+    assert np.ptp(path[:, 0]) > 0.1, "the path is a dot in the middle of the page"  # a 1.2 m loop in a 6 m room
