@@ -282,13 +282,16 @@ def frustum_segments(poses: np.ndarray, fov_y: float, aspect: float, scale: floa
 
 
 def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
-    """Centre ``(3,)`` and radius (metres) of what the scene shows: the whole camera path and the
-    bulk of the maps (2nd to 98th percentile per axis, so stray points do not shrink the view)."""
-    boxes = []
+    """Centre ``(3,)`` and radius (metres) of the sphere the initial view frames.
+
+    The centre is that of the box holding the camera path and the bulk of the maps (2nd to
+    98th percentile per axis, so stray points do not shrink the view); the radius holds the
+    whole path, and at least half of that box (the path's surroundings fill the picture, the far
+    walls may be cut), and at least 0.75 m (a desk-sized view).
+    """
     path = run.trajectory.positions if run.trajectory is not None else (
         run.kf_poses[:, :3, 3] if run.kf_poses is not None else None)
-    if path is not None and len(path):
-        boxes.append((path.min(axis=0), path.max(axis=0)))
+    boxes = [] if path is None or not len(path) else [(path.min(axis=0), path.max(axis=0))]
     maps = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
     if maps:
         P = np.concatenate(maps)
@@ -299,7 +302,9 @@ def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
         return np.zeros(3), 1.0
     lo = np.min([b[0] for b in boxes], axis=0)
     hi = np.max([b[1] for b in boxes], axis=0)
-    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.75)  # at least a desk-sized view
+    centre = (lo + hi) / 2
+    r_path = 1.1 * float(np.linalg.norm(path - centre, axis=1).max()) if boxes and path is not None and len(path) else 0.0
+    return centre, max(r_path, 0.5 * float(np.linalg.norm(hi - lo)) / 2, 0.75)
 
 
 def _up_direction(run: RunData) -> np.ndarray:
@@ -315,8 +320,8 @@ def _up_direction(run: RunData) -> np.ndarray:
 def initial_view(run: RunData, fov_y: float = VIEWER_FOV_Y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the viewer's camera starts: ``(eye (3,), look_at (3,), up (3,))`` in metres.
 
-    It looks at the centre of :func:`scene_bounds` from far enough that the bounding sphere
-    fits the vertical field of view ``fov_y``: from behind and above the cameras, 35 degrees
+    It looks at the centre of :func:`scene_bounds` from far enough that its sphere fits the
+    vertical field of view ``fov_y``: from behind and above the cameras, 35 degrees
     down, along the direction they look on average; for paths whose cameras look all around
     (a loop), from the side and 55 degrees above.
     """
@@ -718,7 +723,7 @@ def _add_controls(server, h: SceneHandles, present: list[str], config: SceneConf
         f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;margin:2px 0">'
         f'<span style="display:inline-block;width:14px;height:14px;background:{c};border:1px solid #555"></span>'
         f"{html.escape(label)}</div>" for label, c in rows)
-    with gui.add_folder("Legend"):
+    with gui.add_folder("Legend", order=0.0):  # first in the panel, above the playback controls
         h.legend = gui.add_html(f"<div>{cells}</div>")
 
 
