@@ -119,3 +119,40 @@ def test_notebook_runs_and_draws(path):
     bad = [r for r in rows if r["error"] or not r["differs"] or not all(r["differs"])]
     print(f"{path.stem}: {len(rows)} controls checked")
     assert not bad, "controls that do not change the figure:\n" + "\n".join(map(str, bad))
+
+
+def test_notebooks_command_opens_the_py_files_as_notebooks(monkeypatch, capsys):
+    """`dynslam notebooks 4` starts JupyterLab on notebooks/04_*.py with a config path whose lab
+    settings make jupytext's notebook view the default for Python files (read back the way
+    JupyterLab reads it, when JupyterLab is installed)."""
+    from dynslam_lab.cli import main
+    from dynslam_lab.commands.notebooks import find_notebook, lab_command
+
+    nb = find_notebook("4")
+    assert nb.name.startswith("04_") and nb.parent == ROOT / "notebooks"
+    assert find_notebook("04_depth_ransac.py") == nb
+    with pytest.raises(FileNotFoundError, match="known: 00_quickstart"):
+        find_notebook("42")
+    cmd, env = lab_command(nb, port=8899, no_browser=True)
+    assert nb.name in cmd and "--ServerApp.port=8899" in cmd and "--no-browser" in cmd
+    config_dir = env["JUPYTER_CONFIG_PATH"].split(":")[0]
+    assert config_dir == str(ROOT / "notebooks" / "jupyter_config")
+    settings = json.loads((ROOT / "notebooks" / "jupyter_config" / "labconfig" / "default_setting_overrides.json").read_text())
+    assert settings["@jupyterlab/docmanager-extension:plugin"]["defaultViewers"]["python"] == "Jupytext Notebook"
+    try:  # read back as JupyterLab's settings server does (jupyter_server: the [notebooks] extra)
+        from jupyter_server.services.config.manager import ConfigManager
+    except ImportError:
+        ConfigManager = None
+    if ConfigManager is not None:
+        monkeypatch.setenv("JUPYTER_CONFIG_PATH", env["JUPYTER_CONFIG_PATH"])
+        overrides = ConfigManager(config_dir_name="labconfig").get("default_setting_overrides")
+        assert overrides["@jupyterlab/docmanager-extension:plugin"]["defaultViewers"]["python"] == "Jupytext Notebook"
+    import importlib.util
+
+    installed = all(importlib.util.find_spec(m) for m in ("jupyterlab", "jupytext", "ipywidgets", "ipykernel"))
+    rc = main(["notebooks", "00", "--dry-run"])
+    out = capsys.readouterr()
+    if installed:
+        assert rc == 0 and "00_quickstart.py" in out.out and "JUPYTER_CONFIG_PATH=" in out.out
+    else:  # the test extra alone: a clear line naming the extra
+        assert rc == 1 and 'pip install -e ".[notebooks]"' in out.err
