@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOKS = ROOT / "notebooks"
 MARKER = ".dynslam-gallery"
@@ -40,6 +42,7 @@ def _atomic_write(path: Path, text: str) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
+        os.chmod(tmp, 0o644)  # pages are read by a web server or a browser, not only by us
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -72,15 +75,28 @@ def _strip_widgets(nb) -> int:
     return n
 
 
+def _thumbnail(png_b64: str, width: int = 480) -> str:
+    """A base64 PNG shrunk to ``width`` pixels (the index page stays small)."""
+    import base64
+
+    import cv2  # a dependency of the package
+
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(png_b64), np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.shape[1] <= width:
+        return png_b64
+    small = cv2.resize(img, (width, round(img.shape[0] * width / img.shape[1])), interpolation=cv2.INTER_AREA)
+    return base64.b64encode(cv2.imencode(".png", small)[1].tobytes()).decode("ascii")
+
+
 def _summary(nb) -> tuple[str, str, str | None]:
     """Title, the "What you will learn" text, and the first figure (base64 PNG) of a notebook."""
     first = nb.cells[0].source if nb.cells else ""
     title = next((ln.lstrip("# ").strip() for ln in first.splitlines() if ln.startswith("#")), "notebook")
-    m = re.search(r"What you will learn\**:?\s*(.*)", first, re.S)
-    learn = m.group(1).strip() if m else ""
+    m = re.search(r"What you will learn\**:?\s*(.*?)(\n\s*\n|$)", first, re.S)  # the list, to the first blank line
+    learn = m.group(1).strip().replace("`", "") if m else ""
     img = next((o["data"]["image/png"] for c in nb.cells if c.cell_type == "code"
                 for o in c.get("outputs", []) if "image/png" in o.get("data", {})), None)
-    return title, learn, img
+    return title, learn, (None if img is None else _thumbnail(img))
 
 
 def build(names: list[str], out: Path, timeout: float) -> int:
