@@ -16,9 +16,10 @@ Both are refused here, for HTTP requests and WebSocket handshakes alike:
   which could read the run folder anyway.
 
 viser serves HTTP and WebSockets from one ``websockets`` server and exposes no request hook,
-so :func:`guard_viser_server` wraps the ``process_request`` of that server (found by its
-bound port) with :func:`refusal`; if the server cannot be found (another viser version), it
-raises instead of serving unguarded.
+so :func:`guard_viser_server` wraps the ``process_request`` of that server (found among the
+coroutines of viser's event loop, else among all live objects, by its bound port) with
+:func:`refusal`; if the server cannot be found (another viser version), it raises instead of
+serving unguarded.
 """
 
 from __future__ import annotations
@@ -95,17 +96,43 @@ def refusal(headers: Mapping[str, str], allowed: frozenset[str]) -> str | None:
     return None
 
 
-def _websockets_server(port: int):
-    """viser's ``websockets.asyncio.server.Server`` listening on ``port``, or None."""
+def _listens_on(obj, port: int) -> bool:
+    srv = getattr(obj, "server", None)
+    return any(s.getsockname()[1] == port for s in (getattr(srv, "sockets", None) or ()))
+
+
+def _from_tasks(loop, wss, port: int):
+    """The server held by a coroutine running on viser's event loop (cheap: a few frames)."""
+    import asyncio
+
+    async def scan():
+        for task in asyncio.all_tasks():
+            coro = task.get_coro()
+            while coro is not None:
+                frame = getattr(coro, "cr_frame", None)
+                for value in (frame.f_locals.values() if frame is not None else ()):
+                    server = value.server if isinstance(value, wss.serve) else value
+                    if isinstance(server, wss.Server) and _listens_on(server, port):
+                        return server
+                coro = getattr(coro, "cr_await", None)
+        return None
+
+    try:
+        return asyncio.run_coroutine_threadsafe(scan(), loop).result(timeout=5)
+    except Exception:  # a closed loop, a time-out: fall back to the heap scan
+        return None
+
+
+def _websockets_server(server, port: int):
+    """viser's ``websockets.asyncio.server.Server`` listening on ``port``, or None: looked up in
+    the coroutines of viser's event loop, else among all live objects."""
     import websockets.asyncio.server as wss  # viser's own dependency
 
-    for obj in gc.get_objects():
-        if isinstance(obj, wss.Server):
-            srv = getattr(obj, "server", None)
-            sockets = getattr(srv, "sockets", None) or ()
-            if any(s.getsockname()[1] == port for s in sockets):
-                return obj
-    return None
+    loop = getattr(getattr(server, "_websock_server", None), "_background_event_loop", None)
+    found = _from_tasks(loop, wss, port) if loop is not None else None
+    if found is not None:
+        return found
+    return next((o for o in gc.get_objects() if isinstance(o, wss.Server) and _listens_on(o, port)), None)
 
 
 def guard_viser_server(server, extra_hosts: Iterable[str] = (), log=None) -> frozenset[str]:
@@ -127,7 +154,7 @@ def guard_viser_server(server, extra_hosts: Iterable[str] = (), log=None) -> fro
     """
     port = int(server.get_port())
     allowed = allowed_hosts(server.get_host(), port, extra_hosts)
-    ws = _websockets_server(port)
+    ws = _websockets_server(server, port)
     if ws is None:
         server.stop()
         raise RuntimeError(f"viewer on port {port}: could not install the Host/Origin check (unknown viser "

@@ -42,7 +42,7 @@ def viewer(tmp_path_factory):
                          n_dense_points=100)
     refused = []
     server, h = start_viewer(run, config=SceneConfig(max_image_frustums=0), log=refused.append)
-    yield server.get_port(), refused
+    yield server.get_port(), refused, server
     h.close()
     server.stop()
 
@@ -61,7 +61,7 @@ def _get(port, headers):
 
 
 def test_http_answers_its_own_host_and_refuses_a_foreign_one(viewer):
-    port, refused = viewer
+    port, refused, _ = viewer
     status, body = _get(port, {"Host": f"127.0.0.1:{port}"})
     assert status == 200 and b"<html" in body.lower()
     assert _get(port, {"Host": f"localhost:{port}"})[0] == 200
@@ -78,7 +78,7 @@ def test_websocket_from_a_foreign_origin_is_refused(viewer):
     from websockets.exceptions import InvalidStatus
     from websockets.sync.client import connect
 
-    port, _ = viewer
+    port, _, _ = viewer
     proto = [f"viser-v{viser.__version__}"]
     with pytest.raises(InvalidStatus) as e:
         connect(f"ws://127.0.0.1:{port}/", origin="http://evil.example", subprotocols=proto, open_timeout=10)
@@ -93,3 +93,19 @@ def test_websocket_from_a_foreign_origin_is_refused(viewer):
     # the viewer's own page is let in
     with connect(f"ws://127.0.0.1:{port}/", origin=f"http://127.0.0.1:{port}", subprotocols=proto, open_timeout=10) as ws:
         assert ws.subprotocol == proto[0]
+
+
+def test_the_server_hook_is_found_among_viser_coroutines(viewer):
+    """The cheap lookup (viser's event-loop coroutines) finds the same websockets server as the
+    heap scan, and it carries the guard."""
+    import gc
+
+    import websockets.asyncio.server as wss
+
+    from dynslam_lab.viz.access import _from_tasks, _listens_on
+
+    port, _, server = viewer
+    fast = _from_tasks(server._websock_server._background_event_loop, wss, port)
+    slow = [o for o in gc.get_objects() if isinstance(o, wss.Server) and _listens_on(o, port)]
+    assert fast is not None and slow == [fast]
+    assert fast.process_request.__name__ == "guarded"
