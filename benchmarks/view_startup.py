@@ -44,6 +44,8 @@ def main() -> int:
     from tests.fixtures.demo_run import write_demo_run
     from dynslam_lab.viz.viser_scene import COLORS, SceneConfig, build_scene, free_port, load_run, open_server
 
+    import viser  # noqa: F401  (imported here so that the server's start-up below excludes the import)
+
     tmp = Path(tempfile.mkdtemp(prefix="view_startup_"))
     try:
         t = time.perf_counter()

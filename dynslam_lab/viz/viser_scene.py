@@ -294,7 +294,7 @@ def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
     boxes = [] if path is None or not len(path) else [(path.min(axis=0), path.max(axis=0))]
     maps = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
     if maps:
-        P = np.concatenate(maps)
+        P = np.concatenate([m[:: max(1, len(m) // 50_000)] for m in maps])  # an even subset: percentiles of 1e6 points cost 0.1 s
         P = P[np.isfinite(P).all(axis=1)]
         if len(P):
             boxes.append((np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)))
