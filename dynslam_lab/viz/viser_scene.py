@@ -21,9 +21,10 @@ so that the first picture does not wait for the large layers (``benchmarks/view_
 
 1. at once: the trajectories, loop edges, the playback frustum, the GUI and the legend;
 2. ``defer_layers`` seconds after the first browser connects: the keyframes (wireframes and
-   thumbnails), the sparse map, the dynamic points of the current window, and the dense map,
-   whole when it has at most ``preview_dense_points`` points, else a seeded subset of that size;
-3. ``defer_dense`` seconds later, only for a larger dense map: all of it (up to
+   thumbnails), the sparse map, the dynamic points of the current window, and the dense map
+   when it has at most ``preview_dense_points`` points (a demo-size run);
+3. for a larger dense map, ``defer_dense`` seconds later a seeded subset of
+   ``preview_dense_points``, and ``defer_dense`` seconds after that all of it (up to
    ``max_dense_points``). :func:`load_run` can leave ``map.ply`` on disk (``dense=False``) to
    be read in the background while the server already answers.
 
@@ -731,9 +732,10 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
     """Add a run's layers (and the playback GUI and legend) to a viser server.
 
     The trajectories, loop edges, playback frustum, GUI and legend are sent at once. With the GUI
-    on and a delay configured, the keyframes, sparse map, dynamic window and dense preview follow
-    ``config.defer_layers`` seconds after the first browser connects, and a large dense map whole
-    ``config.defer_dense`` seconds after them (a ``map.ply`` left on disk by
+    on and a delay configured, the keyframes, sparse map, dynamic window and a demo-size dense
+    map follow ``config.defer_layers`` seconds after the first browser connects; a larger dense
+    map comes as a preview ``config.defer_dense`` seconds after them and whole as much later (a
+    ``map.ply`` left on disk by
     ``load_run(..., dense=False)`` is read in a background thread meanwhile); otherwise
     (notebook embeds) everything is sent before this returns. :meth:`SceneHandles.add_deferred`
     sends what is left at any time.
@@ -765,18 +767,21 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
         h.dynamic = DynamicWindow(run.dynamic_xyz, dynamic_pose_index(run), config.dynamic_window)
 
     _add_paths(scene, run, config, h)
-    stage2, stage3 = [], []
+    stage2, stage3 = [], []  # (stage4: below)
     if _some(run.kf_poses):
         stage2.append(_keyframe_sender(scene, run, config, h))
     if _some(run.map_xyz) or h.dynamic is not None:
         stage2.append(_points_sender(scene, run, config, h))
+    stage4 = []
     has_dense = (_some(run.dense_xyz) or run.dense_count > 0) and config.max_dense_points > 0
     if has_dense:
         preview, full = _dense_senders(scene, run, config, h, background=streaming)
-        stage2.append(preview)
-        if full is not None:
-            stage3.append(full)
-    for delay, sends in ((config.defer_layers, stage2), (config.defer_dense, stage3)):
+        if full is None:  # a demo-size map: with the keyframes
+            stage2.append(preview)
+        else:  # a large one: a preview after the keyframes, then all of it
+            stage3.append(preview)
+            stage4.append(full)
+    for delay, sends in ((config.defer_layers, stage2), (config.defer_dense, stage3), (config.defer_dense, stage4)):
         if sends:
             h.deferred.append((delay, sends))
     _add_playback(server, run, config, h)

@@ -128,13 +128,16 @@ def test_layers_stream_in_stages(demo):
         while len(h.stage_seconds) < 2 and time.monotonic() - t0 < 10:  # stage 2 sent
             time.sleep(0.02)
         t_kf = time.monotonic() - t0
-        assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes
-        # a map larger than the preview: a seeded subset first, all of it in the next stage
+        assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes and "dense" not in h.nodes
+        # a map larger than the preview: a seeded subset in the next stage, all of it in the one after
+        while len(h.stage_seconds) < 3 and time.monotonic() - t0 < 10:
+            time.sleep(0.02)
+        t_preview = time.monotonic() - t0
         assert np.asarray(h.nodes["dense"].points).shape == (1000, 3)
         assert h.wait_complete(10)
         t_dense = time.monotonic() - t0
-        assert 0.3 < t_kf < 5 and t_dense - t_kf > 0.3, (t_kf, t_dense)
-        assert h.errors == [] and len(h.stage_seconds) == 3
+        assert 0.3 < t_kf < 5 and t_preview - t_kf > 0.3 and t_dense - t_preview > 0.3, (t_kf, t_preview, t_dense)
+        assert h.errors == [] and len(h.stage_seconds) == 4
         assert np.asarray(h.nodes["dense"].points).shape == (5000, 3)
     finally:
         h.close()
