@@ -293,12 +293,9 @@ def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
     path = run.trajectory.positions if run.trajectory is not None else (
         run.kf_poses[:, :3, 3] if run.kf_poses is not None else None)
     boxes = [] if path is None or not len(path) else [(path.min(axis=0), path.max(axis=0))]
-    maps = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
-    if maps:
-        P = np.concatenate([m[:: max(1, len(m) // 50_000)] for m in maps])  # an even subset: percentiles of 1e6 points cost 0.1 s
-        P = P[np.isfinite(P).all(axis=1)]
-        if len(P):
-            boxes.append((np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)))
+    box = _map_box(run)
+    if box is not None:
+        boxes.append(box)
     if not boxes:
         return np.zeros(3), 1.0
     lo = np.min([b[0] for b in boxes], axis=0)
@@ -324,7 +321,9 @@ def initial_view(run: RunData, fov_y: float = VIEWER_FOV_Y) -> tuple[np.ndarray,
     It looks at the centre of :func:`scene_bounds` from far enough that its sphere fits the
     vertical field of view ``fov_y``: from behind and above the cameras, 35 degrees
     down, along the direction they look on average; for paths whose cameras look all around
-    (a loop), from the side and 55 degrees above.
+    (a loop), from the side and 55 degrees above. The eye stays inside the mapped space (the
+    2nd-98th percentile box of the maps, less 5 cm): a room's walls or ceiling between the eye
+    and the scene would hide it, so the eye comes closer along the same line of sight.
     """
     centre, radius = scene_bounds(run)
     up = _up_direction(run)
@@ -340,7 +339,25 @@ def initial_view(run: RunData, fov_y: float = VIEWER_FOV_Y) -> tuple[np.ndarray,
         horizontal, down = -side / np.linalg.norm(side), np.deg2rad(55.0)
     view = np.cos(down) * horizontal - np.sin(down) * up  # unit viewing direction
     distance = 1.05 * radius / np.sin(fov_y / 2)
+    box = _map_box(run)
+    if box is not None:
+        # stay inside the mapped space (a room's walls or ceiling between the eye and the scene
+        # would hide it): come closer along the same line of sight
+        lo, hi = box[0] + 0.05, box[1] - 0.05
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(view > 1e-9, (centre - lo) / view, np.where(view < -1e-9, (centre - hi) / view, np.inf))
+        distance = float(np.clip(np.min(t), 0.5, distance)) if np.all(lo < hi) else distance
     return centre - distance * view, centre, up
+
+
+def _map_box(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
+    """2nd and 98th percentiles ``(3,)`` per axis of the maps' points (an even subset), or None."""
+    maps = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
+    if not maps:
+        return None
+    P = np.concatenate([m[:: max(1, len(m) // 50_000)] for m in maps])  # percentiles of 1e6 points cost 0.1 s
+    P = P[np.isfinite(P).all(axis=1)]
+    return (np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)) if len(P) else None
 
 
 def dynamic_pose_index(run: RunData) -> np.ndarray | None:
