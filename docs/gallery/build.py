@@ -20,6 +20,7 @@ is ignored by git. The script writes only into a folder it created (marked by a
 from __future__ import annotations
 
 import argparse
+import base64
 import html
 import os
 import re
@@ -58,7 +59,7 @@ def _prepare_out(out: Path) -> None:
 
 def _strip_widgets(nb) -> int:
     """Replace widget views (no state in a static page) by a short note; returns how many."""
-    from nbformat.v4 import new_output
+    from nbformat.v4 import new_output  # the [notebooks] extra
 
     n = 0
     for cell in nb.cells:
@@ -77,9 +78,7 @@ def _strip_widgets(nb) -> int:
 
 def _thumbnail(png_b64: str, width: int = 480) -> str:
     """A base64 PNG shrunk to ``width`` pixels (the index page stays small)."""
-    import base64
-
-    import cv2  # a dependency of the package
+    import cv2  # heavy: only for the index page
 
     img = cv2.imdecode(np.frombuffer(base64.b64decode(png_b64), np.uint8), cv2.IMREAD_COLOR)
     if img is None or img.shape[1] <= width:
@@ -100,9 +99,9 @@ def _summary(nb) -> tuple[str, str, str | None]:
 
 
 def build(names: list[str], out: Path, timeout: float) -> int:
-    from nbconvert import HTMLExporter
+    from nbconvert import HTMLExporter  # the [notebooks] extra
 
-    from dynslam_lab.viz.notebook_exec import count_images, execute_notebook, read_notebook
+    from dynslam_lab.viz.notebook_exec import count_images, execute_notebook, read_notebook  # after sys.path is set (main)
 
     paths = sorted(NOTEBOOKS.glob("[0-9][0-9]_*.py"))
     if names:

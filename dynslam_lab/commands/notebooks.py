@@ -17,6 +17,10 @@ user's Jupyter settings. See ``docs/notebooks.md``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 NOTEBOOKS = Path(__file__).resolve().parents[2] / "notebooks"  # the clone's notebooks/ (editable install)
@@ -60,9 +64,6 @@ def find_notebook(name: str, folder: Path = NOTEBOOKS) -> Path:
 def lab_command(notebook: Path, port: int | None = None, no_browser: bool = False,
                 allow_root: bool = False) -> tuple[list[str], dict]:
     """The JupyterLab command line and environment that open ``notebook`` as a notebook."""
-    import os
-    import sys
-
     env = dict(os.environ)
     config = str(notebook.parent / "jupyter_config")
     env["JUPYTER_CONFIG_PATH"] = os.pathsep.join([config] + [p for p in env.get("JUPYTER_CONFIG_PATH", "").split(os.pathsep) if p])
@@ -77,9 +78,6 @@ def lab_command(notebook: Path, port: int | None = None, no_browser: bool = Fals
 
 
 def run(args: argparse.Namespace) -> int:
-    import importlib.util
-    import subprocess
-
     if args.port is not None and not 0 < args.port < 65536:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
     notebook = find_notebook(args.notebook)

@@ -24,6 +24,7 @@ serving unguarded.
 
 from __future__ import annotations
 
+import asyncio
 import gc
 import http
 import inspect
@@ -103,8 +104,6 @@ def _listens_on(obj, port: int) -> bool:
 
 def _from_tasks(loop, wss, port: int):
     """The server held by a coroutine running on viser's event loop (cheap: a few frames)."""
-    import asyncio
-
     async def scan():
         for task in asyncio.all_tasks():
             coro = task.get_coro()

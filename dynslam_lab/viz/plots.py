@@ -28,7 +28,7 @@ from typing import Mapping
 import numpy as np
 
 from ..evaluation.trajectory import Trajectory
-from .colors import FILTERS, STAGES, hex_color, instance_colors
+from .colors import FILTERS, MOVER_COLORS, STAGES, hex_color, instance_colors
 
 __all__ = [
     "plot_trajectories",
@@ -69,7 +69,7 @@ def trajectory_style(name: str) -> dict:
 
 
 def _new_axes(ax, figsize):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: imported on use (module docstring)
 
     if ax is not None:
         return ax.figure, ax
@@ -129,7 +129,7 @@ def plot_trajectory_axes(trajectories: Mapping[str, Trajectory], title: str | No
     -------
     matplotlib Figure with three stacked axes sharing the time axis.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: imported on use (module docstring)
 
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(7, 5), constrained_layout=True)
     t0 = None
@@ -165,7 +165,7 @@ def plot_ate_along_path(ate, plane: str = "xy", ax=None, cmap: str = "viridis"):
     matplotlib Figure; the coloured path is a ``LineCollection`` whose ``get_array()`` holds
     the error (metres) of each segment (mean of its two end poses).
     """
-    from matplotlib.collections import LineCollection
+    from matplotlib.collections import LineCollection  # heavy: imported on use
 
     if len(plane) != 2 or any(c not in _AXES for c in plane) or plane[0] == plane[1]:
         raise ValueError(f"plane must be two different letters of 'xyz', got {plane!r}")
@@ -201,7 +201,7 @@ def plot_rpe_over_time(rpe, title: str | None = None):
     -------
     matplotlib Figure with two axes; a dotted line marks each RMSE.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: imported on use (module docstring)
 
     fig, (ax_t, ax_r) = plt.subplots(2, 1, sharex=True, figsize=(7, 4.5), constrained_layout=True)
     t = np.asarray(rpe.timestamps) - (rpe.timestamps[0] if len(rpe.timestamps) else 0.0)
@@ -373,8 +373,8 @@ def plot_rgbd_frame(frame, title: str | None = None, max_depth: float | None = N
     -------
     matplotlib Figure with two or three axes.
     """
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
+    import matplotlib.pyplot as plt  # heavy: imported on use (module docstring)
+    from matplotlib.patches import Patch  # heavy: imported on use
 
     has_mask = getattr(frame, "instance_mask", None) is not None
     fig, axes = plt.subplots(1, 3 if has_mask else 2, figsize=(14 if has_mask else 9.5, 3.6), constrained_layout=True)
@@ -390,8 +390,6 @@ def plot_rgbd_frame(frame, title: str | None = None, max_depth: float | None = N
         movers = sorted(i for i in (frame.moving_ids or ()) if i in present)
         axes[2].imshow(instance_colors(frame.instance_mask, movers, frame.instance_classes), interpolation="nearest")
         axes[2].set_title(f"instances: {len(movers)} moving")
-        from .colors import MOVER_COLORS
-
         handles = [Patch(color=np.array(MOVER_COLORS[k % len(MOVER_COLORS)]) / 255,
                          label=f"{frame.instance_classes.get(i, 'object')} {i} (moving)") for k, i in enumerate(movers)]
         if handles:
@@ -417,7 +415,7 @@ def plot_ablation(df, title: str | None = None):
     matplotlib Figure with two axes: horizontal ATE bars (one label per bar, its value at its
     end) and grouped precision/recall bars.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: imported on use (module docstring)
 
     g = df.groupby("filter", sort=False)[["ate_rmse_m", "precision", "recall"]].mean()
     names = list(g.index)

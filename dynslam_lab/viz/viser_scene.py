@@ -537,7 +537,7 @@ class DynamicWindow:
 
 
 def _thumb(path: Path) -> np.ndarray | None:
-    import cv2
+    import cv2  # heavy: only once thumbnails are drawn (keeps `dynslam view`'s start short)
 
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

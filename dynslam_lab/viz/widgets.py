@@ -188,8 +188,8 @@ def figure_explorer(draw: Callable[..., Any], name: str | None = None, probes: d
         return explorer
 
     import ipywidgets as widgets  # optional heavy dependency
-    import matplotlib.pyplot as plt
-    from IPython.display import display
+    import matplotlib.pyplot as plt  # heavy: imported on use
+    from IPython.display import display  # optional: a notebook kernel's
 
     fig = explorer.figure()
     display(fig)  # the static first rendering: a plain image output
@@ -220,7 +220,7 @@ def figure_pixels(fig, hide_text: bool = True) -> np.ndarray:
     compare equal exactly when they draw the same data (a title printing a slider's value
     does not make a difference).
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy: imported on use
     from matplotlib.legend import Legend
     from matplotlib.text import Text
 
@@ -252,7 +252,7 @@ def check_explorers(names: Sequence[str] | None = None, min_pixels: int = 10) ->
     one dict per control: ``explorer``, ``control``, ``start``, ``probes``, ``differs``
     (one bool per probe), ``changed_pixels``, ``error`` (a message, or None).
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: imported on use
 
     rows = []
     for name in names if names is not None else list(REGISTRY):
