@@ -1,6 +1,7 @@
 # ---
 # jupyter:
 #   jupytext:
+#     formats: py:percent
 #     text_representation:
 #       extension: .py
 #       format_name: percent
@@ -13,197 +14,246 @@
 # %% [markdown]
 # # 02 · ORB features and tracking
 #
-# The tracker of ORB-SLAM2 (Mur-Artal and Tardos, T-RO 2017) in RGB-D mode, step by step:
+# **What you will learn**
+# - how ORB-SLAM2 spreads its keypoints over a scale pyramid and an image grid;
+# - how two frames are matched: Hamming distance, ratio test, rotation consistency;
+# - how PnP-RANSAC finds a camera pose from 3D points and their pixels, and what an outlier is;
+# - how the whole tracker follows a short sequence, and what each stage costs.
 #
-# 1. **ORB features** spread over the image and a scale pyramid (`features.orb`);
-# 2. **matching** two frames: Hamming distance, ratio test, rotation consistency (`features.matching`);
-# 3. **PnP-RANSAC**: the pose of a frame from 3D points (depth of the first frame) and their pixels;
-# 4. **a short sequence tracked** by the whole system, estimated against true trajectory.
+# The tracker is that of ORB-SLAM2 (Mur-Artal & Tardos 2017) in RGB-D mode. Its keypoints are
+# shared among $L = 8$ pyramid levels of scale factor $f = 1.2$ as a geometric series,
 #
-# The data is a short synthetic sequence (two people walking in an office, rendered with ground
-# truth poses and instance masks). Here the people are removed with their *true* masks, a
-# stand-in for the screening stage of notebooks 04-07. See `docs/tracking.md`.
+# $$n_s = N \,\frac{1 - 1/f}{1 - (1/f)^L}\, (1/f)^s, \qquad s = 0, \dots, L-1,$$
+#
+# and a pose is the one that minimises the reprojection error
+# $\sum_i \rho\big(\lVert u_i - \pi(R X_i + t) \rVert^2\big)$ over the matched 3D points $X_i$.
+# The people are removed here with their *true* masks (the `oracle` filter), a stand-in for the
+# screening stage of notebooks 04-07. See `docs/tracking.md`.
 
 # %%
 import matplotlib.pyplot as plt
 import numpy as np
-from ipywidgets import IntSlider, FloatSlider, interactive
 
 from dynslam_lab.config import Config
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.datasets.tum import TumSequence
-from dynslam_lab.evaluation import align_trajectory, compute_ate
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.evaluation import compute_ate
 from dynslam_lab.features.matching import hamming_distance, match_descriptors, orientation_consistent
 from dynslam_lab.features.orb import OrbConfig, extract_features, level_quotas
-from dynslam_lab.geometry.se3 import se3_inv, transform_points
-from dynslam_lab.slam.system import System
 from dynslam_lab.geometry.pnp import pnp_ransac
+from dynslam_lab.geometry.se3 import se3_inv, transform_points
+from dynslam_lab.pipeline import build_pipeline
+from dynslam_lab.viz.colors import hex_color
+from dynslam_lab.viz.exercises import check
+from dynslam_lab.viz.plots import plot_trajectories
+from dynslam_lab.viz.widgets import figure_explorer, float_slider, int_slider
 
 seq = TumSequence(synthetic_sequence("walking_xyz", n_frames=30, seed=0))
-f0, f1 = seq[0], seq[12]
-print(seq, "| camera", seq.camera.name, "| frames", len(seq))
+f0, f1 = seq[2], seq[14]  # two frames 0.4 s apart, the walkers moving in both
+cfg = Config()
+print(seq, "| camera", seq.camera.name)
 
 # %% [markdown]
 # ## 1. ORB features over a pyramid and a grid
 #
-# `n_features` keypoints are shared among the 8 pyramid levels as a geometric series
-# `n_s ∝ (1/1.2)^s`, and inside a level over a grid of cells, strongest corners first. Plain ORB
+# Inside a level, keypoints are spread over a grid of cells, strongest corners first. Plain ORB
 # keeps the globally strongest corners, which cluster on the most textured objects.
 
-# %%
-cfg = Config()
-print("per-level quotas:", level_quotas(cfg.orb))
+# %% figures=1
+print("keypoints per level (N = 1000):", level_quotas(cfg.orb))
 
 
-def show_orb(n_features=1000, grid_cols=20):
+def draw_orb(n_features=1000, grid_cols=20):
     ocfg = OrbConfig(n_features=n_features, grid_cols=grid_cols, grid_rows=max(1, grid_cols * 3 // 4))
     feats = extract_features(f0.gray, ocfg)
     plain = extract_features(f0.gray, OrbConfig(n_features=n_features, grid_cols=1, grid_rows=1))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    for ax, f, title in [(axes[0], feats, f"grid {grid_cols} cells across"), (axes[1], plain, "one cell (no spreading)")]:
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6), constrained_layout=True)
+    for ax, f, title in [(axes[0], feats, f"grid of {grid_cols} cells across"), (axes[1], plain, "one cell (no spreading)")]:
         ax.imshow(f0.rgb)
-        sc = ax.scatter(f.uv[:, 0], f.uv[:, 1], c=f.octave, s=6, cmap="viridis", vmin=0, vmax=7)
+        sc = ax.scatter(f.uv[:, 0], f.uv[:, 1], c=f.octave, s=14, cmap="viridis", vmin=0, vmax=7, linewidths=0)
         ax.set_title(f"{title}: {len(f)} keypoints")
-        ax.axis("off")
+        ax.set_axis_off()
     fig.colorbar(sc, ax=axes, label="pyramid level", shrink=0.8)
-    plt.show()
+    return fig
 
 
-interactive(show_orb, n_features=IntSlider(1000, 200, 2000, 100), grid_cols=IntSlider(20, 1, 40, 1))
+figure_explorer(draw_orb, name="02 ORB", n_features=int_slider("keypoints N", 1000, 200, 2000, 100),
+                grid_cols=int_slider("grid cells across", 20, 1, 40));
 
-# %%
-show_orb()
+# %% [markdown]
+# **What to look for**: with the grid (left), keypoints cover the walls, floor and desk
+# evenly; with one cell (right) they pile up on the bookshelves and the striped sweater, and
+# the floor is empty. A tracker needs points everywhere: an even spread constrains the pose in
+# every direction, and keeps it when one textured object (a walker) moves.
 
 # %% [markdown]
 # ## 2. Matching two frames
 #
 # A descriptor has 256 bits; the distance is the number of differing bits. A match needs the
-# nearest neighbour within 50 bits and clearly better than the second (`d1 < ratio · d2`); then
-# the rotations `angle_1 - angle_0` of all matches vote in a 30-bin histogram and only the three
-# fullest bins are kept (a camera rotates all keypoints alike). Keypoints on the people are left
+# nearest neighbour within 50 bits and clearly better than the second, $d_1 < r\, d_2$; then the
+# rotations $\theta_1 - \theta_0$ of all matches vote in a 30-bin histogram and only the three
+# fullest bins are kept (a camera rotates all keypoints alike). Keypoints on the walkers are left
 # out, as the tracker does with dynamic keypoints.
 
-# %%
+# %% figures=1
 feats0 = extract_features(f0.gray, cfg.orb)
 feats1 = extract_features(f1.gray, cfg.orb)
+s0, s1 = ~truth_dynamic(f0, feats0.uv), ~truth_dynamic(f1, feats1.uv)
+i0, i1 = np.flatnonzero(s0), np.flatnonzero(s1)
+print(f"static keypoints: {s0.sum()} / {len(s0)} in frame {f0.index} and {s1.sum()} / {len(s1)} in frame {f1.index}")
 
 
-def static_mask(frame, uv):
-    """True where a keypoint is not on a person (ground-truth instance mask)."""
-    m = frame.dynamic_mask({"person"})
-    ui = np.clip(np.round(uv[:, 0]).astype(int), 0, m.shape[1] - 1)
-    vi = np.clip(np.round(uv[:, 1]).astype(int), 0, m.shape[0] - 1)
-    return ~m[vi, ui]
-
-
-s0, s1 = static_mask(f0, feats0.uv), static_mask(f1, feats1.uv)
-print(f"static keypoints: {s0.sum()} / {len(s0)} and {s1.sum()} / {len(s1)}")
-D = hamming_distance(feats0.descriptors[:5], feats1.descriptors[:8])
-print("Hamming distances of 5 x 8 descriptors:\n", D)
-
-
-def show_matches(ratio=0.8):
-    i0, i1 = np.flatnonzero(s0), np.flatnonzero(s1)
+def match(ratio):
     m = match_descriptors(feats0.descriptors[i0], feats1.descriptors[i1], ratio=ratio)
     rot = orientation_consistent(feats0.angle[i0[m.idx_a]], feats1.angle[i1[m.idx_b]])
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4), gridspec_kw={"width_ratios": [2.2, 1]})
-    canvas = np.hstack([f0.rgb, f1.rgb])
-    axes[0].imshow(canvas)
+    return m, rot
+
+
+def draw_matches(ratio=0.8):
+    m, rot = match(ratio)
+    fig, axes = plt.subplots(1, 2, figsize=(14, 4.4), constrained_layout=True, gridspec_kw={"width_ratios": [2.3, 1]})
+    axes[0].imshow(np.hstack([f0.rgb, f1.rgb]))
     w = f0.rgb.shape[1]
-    for ok, color in [(rot, "lime"), (~rot, "red")]:
+    for ok, color in [(rot, hex_color("static")), (~rot, hex_color("estimate"))]:
         a, b = feats0.uv[i0[m.idx_a[ok]]], feats1.uv[i1[m.idx_b[ok]]]
-        axes[0].plot(np.c_[a[:, 0], b[:, 0] + w].T, np.c_[a[:, 1], b[:, 1]].T, color=color, lw=0.5)
+        axes[0].plot(np.c_[a[:, 0], b[:, 0] + w].T, np.c_[a[:, 1], b[:, 1]].T, color=color, lw=0.7)
     axes[0].set_title(f"ratio {ratio:.2f}: {len(m)} matches, {int((~rot).sum())} rotation-inconsistent (red)")
-    axes[0].axis("off")
-    d_rot = np.mod(feats1.angle[i1[m.idx_b]] - feats0.angle[i0[m.idx_a]], 360)
-    axes[1].hist(d_rot, bins=30, range=(0, 360))
-    axes[1].set_xlabel("angle_1 - angle_0 (deg)")
+    axes[0].set_axis_off()
+    # differences wrapped to [-180, 180): a rotation of 0 deg is one bin, not split between 0 and 360
+    d_rot = (feats1.angle[i1[m.idx_b]] - feats0.angle[i0[m.idx_a]] + 180.0) % 360.0 - 180.0
+    bins = np.linspace(-180, 180, 31)
+    axes[1].hist(d_rot[rot], bins=bins, color=hex_color("static"), label="kept")
+    axes[1].hist(d_rot[~rot], bins=bins, color=hex_color("estimate"), label="dropped")
+    axes[1].set_xlabel(r"$\theta_1 - \theta_0$ [deg]")
+    axes[1].set_ylabel("matches")
+    axes[1].set_yscale("log")
+    axes[1].legend(fontsize="small")
     axes[1].set_title("rotation histogram")
-    plt.show()
-    return m
+    return fig
 
 
-interactive(show_matches, ratio=FloatSlider(value=0.8, min=0.5, max=1.0, step=0.05))
+figure_explorer(draw_matches, name="02 matching", ratio=float_slider("ratio r", 0.8, 0.5, 1.0, 0.05));
 
-# %%
-matches = show_matches(0.8)
+# %% [markdown]
+# **What to look for**: the camera barely rotates between the two frames, so almost every
+# match votes for the bin around 0 deg; the few votes elsewhere are wrong matches, dropped in
+# red. A stricter ratio (0.6) keeps fewer, surer matches; at 1.0 the ratio test is off and the
+# wrong matches multiply.
 
 # %% [markdown]
 # ## 3. PnP-RANSAC
 #
-# Frame 0's keypoints with depth are 3D points (`X = z K^-1 (u, v, 1)`, in frame 0's camera, which
-# is our world). With their matches in frame 12, `cv2.solvePnPRansac` finds the pose of frame 12:
-# the green inliers agree with one rigid motion. We compare with the true relative pose.
+# The first frame's keypoints with depth are 3D points ($X = z K^{-1}(u, v, 1)^\top$ in that
+# frame's camera, our world here). With their matches in the second frame, RANSAC finds the
+# pose of the second frame: the inliers agree with one rigid motion within `reproj_px` pixels.
 
-# %%
-i0, i1 = np.flatnonzero(s0), np.flatnonzero(s1)
-a, b = i0[matches.idx_a], i1[matches.idx_b]
+# %% figures=1
+m, rot = match(0.8)
+a, b = i0[m.idx_a[rot]], i1[m.idx_b[rot]]
 z0 = f0.depth[np.round(feats0.uv[a, 1]).astype(int), np.round(feats0.uv[a, 0]).astype(int)]
 ok = z0 > 0
 X0 = seq.camera.backproject(feats0.uv[a][ok].astype(float), z0[ok])
-T_c1_c0, inl = pnp_ransac(X0, feats1.uv[b][ok], seq.camera.K, reproj_px=4.0, iterations=200, seed=0)
-T_true = se3_inv(f1.T_w_c_gt) @ f0.T_w_c_gt
-print(f"{len(X0)} 3D-2D matches, {inl.sum()} inliers")
-print("translation error (m):", np.linalg.norm(T_c1_c0[:3, 3] - T_true[:3, 3]).round(4))
-uv_pred, _ = seq.camera.project(transform_points(T_c1_c0, X0))
-plt.figure(figsize=(7, 5))
-plt.imshow(f1.rgb)
-plt.scatter(*feats1.uv[b][ok][inl].T, s=10, c="lime", label="inlier")
-plt.scatter(*feats1.uv[b][ok][~inl].T, s=14, c="red", marker="x", label="outlier")
-plt.legend(loc="lower right")
-plt.title("PnP-RANSAC inliers in frame 12")
-plt.axis("off")
-plt.show()
+uv1 = feats1.uv[b][ok].astype(float)
+T_true = se3_inv(f1.T_w_c_gt) @ f0.T_w_c_gt  # first camera -> second camera
+
+
+def draw_pnp(reproj_px=4.0):
+    T, inl = pnp_ransac(X0, uv1, seq.camera.K, reproj_px=reproj_px, iterations=200, seed=0)
+    err_cm = 100 * np.linalg.norm(T[:3, 3] - T_true[:3, 3])
+    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
+    ax.imshow(f1.rgb)
+    ax.scatter(*uv1[inl].T, s=22, facecolors="none", edgecolors=hex_color("static"), linewidths=1.3,
+               label=f"inlier ({inl.sum()})")
+    ax.scatter(*uv1[~inl].T, s=40, c=hex_color("estimate"), marker="x", label=f"outlier ({(~inl).sum()})")
+    ax.legend(loc="lower right")
+    ax.set_title(f"reproj_px = {reproj_px:.1f}: translation error {err_cm:.2f} cm against the ground truth")
+    ax.set_axis_off()
+    return fig
+
+
+figure_explorer(draw_pnp, name="02 PnP", reproj_px=float_slider("reproj_px", 4.0, 0.5, 12.0, 0.5));
+
+# %% [markdown]
+# **What to look for**: at 4 px nearly every match is an inlier: with the walkers masked out
+# the matches are good. At 0.5 px the keypoints' own noise (corners are found on a pixel grid,
+# at several pyramid scales) turns most good matches into outliers; at 8-12 px every match is
+# accepted, the few wrong ones too. The pose error stays around a centimetre all along: many
+# inliers spread over the image constrain the pose well.
 
 # %% [markdown]
 # ## 4. Tracking the sequence
 #
-# `System.process(frame)` runs the whole chain per frame: ORB, the screener (here the true masks),
-# tracking by the motion model (or the reference keyframe and PnP), pose-only refinement, the
-# local map, the keyframe decision, local mapping. The estimate starts at the identity; for the
-# plot it is aligned to the ground truth with the best rigid motion (ATE, Sturm et al. 2012).
+# `System.process(frame)` runs the whole chain per frame: ORB, the screener (here the true
+# masks), tracking by the motion model (or the reference keyframe and PnP), pose-only
+# refinement, the local map, the keyframe decision, local mapping. The estimate starts at the
+# identity; for the plot it is aligned to the ground truth with the best rigid motion (ATE,
+# Sturm et al. 2012).
 
-
-# %%
-class TrueMaskScreener:
-    """Stand-in for the screening stage: people's keypoints are dynamic (ground-truth masks)."""
-
-    class Table:
-        def __init__(self, dynamic, region_mask):
-            self.dynamic, self.region_mask = dynamic, region_mask
-
-    def screen(self, frame, uv, detections):
-        return self.Table(~static_mask(frame, uv), frame.dynamic_mask({"person"}))
-
-
-system = System(seq.camera, cfg, screener=TrueMaskScreener())
+# %% figures=1
+system = build_pipeline(cfg, seq.camera, filters="oracle", loop_closing=False)
 results = [system.process(seq[i]) for i in range(len(seq))]
-est = system.trajectory()
-gt = seq.groundtruth
-ate = compute_ate(gt, est, align="se3")
-aligned, _ = align_trajectory(est, gt.subset(np.searchsorted(gt.timestamps, est.timestamps).clip(0, len(gt) - 1)))
-print(f"tracked {len(est)} / {len(seq)} frames, lost {system.lost_frames}, keyframes {len(system.map.keyframes)}, "
-      f"map points {len(system.map.point_ids())}")
-print(f"ATE RMSE: {1000 * ate.stats.rmse:.1f} mm")
+ate = compute_ate(seq.groundtruth, system.trajectory(), align="se3")
+print(f"tracked {len(ate.errors)} / {len(seq)} frames, lost {len(system.lost_frames)}, "
+      f"keyframes {len(system.map.keyframes)}, map points {len(system.map.point_ids())}, "
+      f"ATE RMSE {1000 * ate.stats.rmse:.1f} mm")
 
-fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-axes[0].plot(ate.gt_positions[:, 0], ate.gt_positions[:, 1], "k-", label="true")
-axes[0].plot(ate.est_positions[:, 0], ate.est_positions[:, 1], "r--", label="estimated (aligned)")
-axes[0].set_xlabel("x (m)")
-axes[0].set_ylabel("y (m)")
-axes[0].axis("equal")
-axes[0].legend()
-axes[0].set_title("camera path, top view")
-stages = ["orb", "track", "local_mapping"]
-ms = np.array([[r.timings_ms[s] for s in stages] for r in results])
-axes[1].stackplot(np.arange(len(results)), ms.T, labels=stages)
+fig, axes = plt.subplots(1, 2, figsize=(13, 4.3), constrained_layout=True)
+plot_trajectories({"ground truth": ate.gt_positions, "estimate (aligned)": ate.est_positions}, plane="xy", ax=axes[0],
+                  title="camera path from above (z up)")
+stages = [s for s in ("orb", "screen", "track", "local_mapping") if s in results[0].timings_ms]
+ms = np.array([[r.timings_ms.get(s, 0.0) for s in stages] for r in results])
+axes[1].stackplot(np.arange(len(results)), ms.T, labels=stages,
+                  colors=[hex_color(c) for c in ("multiview", "dynamic", "estimate", "keyframe")][: len(stages)])
+kf = [r.index for r in results if r.is_keyframe]
+axes[1].plot(kf, np.zeros(len(kf)), "v", color="black", ms=7, label="new keyframe")
 axes[1].set_xlabel("frame")
-axes[1].set_ylabel("ms")
-axes[1].legend(loc="upper right")
-axes[1].set_title("time per frame and stage")
-plt.show()
+axes[1].set_ylabel("time [ms]")
+axes[1].legend(loc="upper right", fontsize="small")
+axes[1].set_title("time per frame and stage");
 
-# %%
-print("per-frame: state, method, inliers, dynamic keypoints")
-for r in results[:: max(1, len(results) // 8)]:
-    print(f"  {r.index:3d} {r.state:12s} {r.method:20s} {r.n_inliers:4d} {r.n_dynamic:4d}{'  keyframe' if r.is_keyframe else ''}")
+# %% [markdown]
+# **What to look for**: the aligned estimate lies on the ground truth within millimetres
+# (the walkers are masked out). On the right, local mapping costs time only at keyframes (the
+# triangles): ORB-SLAM2 runs it in a second thread; here it runs inline, so those frames are slow.
+
+# %% [markdown]
+# ### Exercise 1: the Hamming distance
+#
+# Descriptors are 32 bytes (`uint8`). Compute the Hamming distance between the first
+# descriptors of the two frames (`feats0.descriptors[0]`, `feats1.descriptors[0]`) with
+# numpy: XOR the bytes, count the set bits (`np.unpackbits`).
+
+# %% exercise="02.1"
+answer = None  # your code: an integer number of differing bits
+
+# %% check="02.1"
+check("02.1", answer, int(hamming_distance(feats0.descriptors[:1], feats1.descriptors[:1])[0, 0]))
+
+# %% [markdown]
+# ### Exercise 2: the pyramid quotas
+#
+# Compute the number of keypoints per level with the equation at the top, for $N = 1000$,
+# $f = 1.2$, $L = 8$, rounded to integers (the last level takes what is left so that they add
+# up to $N$). Compare with `level_quotas(cfg.orb)`.
+
+# %% exercise="02.2"
+answer = None  # your code: an array of 8 integers
+
+# %% check="02.2"
+check("02.2", answer, level_quotas(cfg.orb), atol=0.5)
+
+# %% [markdown]
+# ### Exercise 3: the reprojection error of the inliers
+#
+# Take the pose `T, inl = pnp_ransac(X0, uv1, seq.camera.K, reproj_px=4.0, iterations=200, seed=0)`.
+# Project the inlier 3D points `X0[inl]` with `T` (`transform_points`, then
+# `seq.camera.project`) and give the median distance to their pixels `uv1[inl]`, in pixels.
+
+# %% exercise="02.3"
+answer = None  # your code: the median reprojection error of the inliers (px)
+
+# %% check="02.3"
+T_chk, inl_chk = pnp_ransac(X0, uv1, seq.camera.K, reproj_px=4.0, iterations=200, seed=0)
+check("02.3", answer, np.median(np.linalg.norm(seq.camera.project(transform_points(T_chk, X0[inl_chk]))[0] - uv1[inl_chk],
+                                               axis=1)), rtol=1e-4)

@@ -14,39 +14,45 @@
 # %% [markdown]
 # # 08 · Loop closure
 #
-# A camera that walks around a room and comes back believes, after a few hundred frames, that
-# it is somewhere else: every pose was estimated from the previous one and the small errors
-# add up (*drift*). **Loop closing** (ORB-SLAM2, Mur-Artal and Tardós 2017, Sec. V) recognises
-# the place, measures where the camera really is relative to the old keyframe, and spreads the
-# correction over the whole trajectory. This notebook takes it apart:
+# **What you will learn**
+# - why a camera that comes back to its start believes it is somewhere else (drift);
+# - how a vocabulary of binary words turns an image into a sparse vector, and how two images are
+#   scored (DBoW2, Galvez-Lopez & Tardos 2012);
+# - how a loop candidate is verified geometrically (3D-3D RANSAC: RGB-D has metric scale), and
+#   what the inlier tolerance decides;
+# - how a pose graph spreads the loop correction over the whole trajectory (ORB-SLAM2,
+#   Mur-Artal & Tardos 2017, Sec. V).
 #
-# 1. the **vocabulary of binary words** that turns an image into a sparse vector (DBoW2,
-#    Gálvez-López and Tardós 2012),
-# 2. a **similarity matrix** over the keyframes of a synthetic loop: the loop is a bright
-#    off-diagonal spot,
-# 3. a **detected loop** and its verified matches (3D-3D RANSAC, RGB-D has metric scale),
-# 4. the **pose graph** before and after optimisation.
+# Every pose is estimated from the previous one, so small errors add up. **Loop closing**
+# recognises a place seen before, measures where the camera really is relative to the old
+# keyframe, and corrects the trajectory. Images are compared by the L1 score of their normalised
+# bag-of-words vectors (DBoW2 eq. 2),
 #
-# See `docs/loop_closing.md` for the equations and parameters.
+# $$s(v_1, v_2) = 1 - \frac{1}{2} \left\lVert \frac{v_1}{|v_1|} - \frac{v_2}{|v_2|} \right\rVert_1 = \sum_i \min(v_1^i, v_2^i),$$
+#
+# and the pose graph minimises $\sum_{ij} w_{ij} \lVert \log(Z_{ij}^{-1} T_i^{-1} T_j)^\vee \rVert^2$ over the
+# keyframe poses $T_i$ given the measured relative poses $Z_{ij}$. See `docs/loop_closing.md`.
 
 # %%
 import dataclasses
 
-import ipywidgets as widgets
 import matplotlib.pyplot as plt
 import numpy as np
-from IPython.display import display
 
 from dynslam_lab.datasets import TumSequence
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.features.orb import OrbConfig, extract_features
 from dynslam_lab.geometry.align import umeyama_alignment
-from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp
+from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, transform_points
 from dynslam_lab.slam.frame import keypoint_depths
 from dynslam_lab.slam.keyframe_database import KeyframeDatabase
 from dynslam_lab.slam.loop_closing import LoopClosingConfig, verify_loop
 from dynslam_lab.slam.pose_graph import optimize_pose_graph
-from dynslam_lab.slam.vocabulary import bow_score_many, default_vocabulary
+from dynslam_lab.slam.vocabulary import bow_score, bow_score_many, default_vocabulary
+from dynslam_lab.viz.colors import hex_color
+from dynslam_lab.viz.exercises import check
+from dynslam_lab.viz.plots import trajectory_style
+from dynslam_lab.viz.widgets import dropdown, figure_explorer, float_slider, int_slider
 
 # %% [markdown]
 # ## 1. The vocabulary
@@ -55,36 +61,46 @@ from dynslam_lab.slam.vocabulary import bow_score_many, default_vocabulary
 # split into $k$ clusters by k-majority (the centre of a cluster is the bitwise majority of its
 # members), each cluster again into $k$, down to a few levels. The leaves are the **words**. A
 # descriptor finds its word by walking down the tree, always to the nearest child in Hamming
-# distance. Each word has an inverse document frequency $\mathrm{idf}_i = \log(N / N_i)$: words
-# that occur in every training image say little about the place.
+# distance. Each word has an inverse document frequency $\mathrm{idf}_i = \log(N / N_i)$ ($N$
+# training images, $N_i$ of them containing word $i$): words that occur everywhere say little
+# about the place.
 
-# %%
+# %% figures=1
 voc = default_vocabulary()
 print(voc)
 per_level = np.bincount(voc.level[voc.word_node], minlength=voc.depth + 1)
-fig, ax = plt.subplots(1, 2, figsize=(11, 3.2))
-ax[0].bar(np.arange(len(per_level)), per_level)
-ax[0].set_xlabel("tree level of the word"); ax[0].set_ylabel("words"); ax[0].set_title("where the leaves are")
-ax[1].hist(voc.idf, bins=40)
-ax[1].set_xlabel("idf = log(N / N_i)"); ax[1].set_title("word weights")
-plt.show()
+fig, ax = plt.subplots(1, 2, figsize=(11, 3.4), constrained_layout=True)
+ax[0].bar(np.arange(len(per_level)), per_level, color=hex_color("multiview"))
+ax[0].set_xlabel("tree level of the word")
+ax[0].set_ylabel("words")
+ax[0].set_title("where the leaves are")
+ax[1].hist(voc.idf, bins=40, color=hex_color("multiview"))
+ax[1].set_xlabel(r"idf = log(N / N$_i$)")
+ax[1].set_ylabel("words")
+ax[1].set_title("word weights");
+
+# %% [markdown]
+# **What to look for**: almost all words are leaves of the deepest level (a full tree of
+# $10^4$ leaves); clusters too small to split stop higher up. Most words have a high idf (they
+# occur in few training images): a few shared rare words make two images similar.
 
 # %% [markdown]
 # ## 2. Keyframes of a synthetic loop
 #
-# The synthetic `loop` preset walks the camera around the office and back to its start. We
-# take every few frames as a keyframe, extract ORB features, keep the **static** ones (the
-# renderer's instance masks tell us which keypoints lie on people: people must not make two
-# places look alike) and compute each keyframe's bag-of-words vector.
+# The synthetic `loop` preset walks the camera around the office and back to its start. Every
+# third frame is a keyframe; its ORB features off the people (the renderer's masks say which
+# keypoints lie on a person: people must not make two places look alike, nor one place look
+# different when they leave) give its bag-of-words vector.
+# The L1 score of every pair of keyframes:
 
-# %%
+# %% figures=1
 N_FRAMES, STRIDE = 90, 3
 seq = TumSequence(synthetic_sequence("loop", N_FRAMES, 0), stride=STRIDE)
 orb = OrbConfig(n_features=1000)
 kfs = []
 for fr in seq:
     feats = extract_features(fr.gray, orb)
-    dyn = fr.dynamic_mask()
+    dyn = fr.dynamic_mask()  # people (the a-priori dynamic class), whether they move or not
     ui = np.clip(np.round(feats.uv[:, 0]).astype(int), 0, fr.shape[1] - 1)
     vi = np.clip(np.round(feats.uv[:, 1]).astype(int), 0, fr.shape[0] - 1)
     static = np.ones(len(feats), bool) if dyn is None else ~dyn[vi, ui]
@@ -92,115 +108,153 @@ for fr in seq:
     pts = fr.camera.backproject(feats.uv.astype(float), z)
     kfs.append(dict(frame=fr, feats=feats.select(static), pts=pts[static], T_gt=fr.T_w_c_gt))
 bows = [voc.bow(k["feats"].descriptors) for k in kfs]
+T_gt = np.stack([k["T_gt"] for k in kfs])
 print(f"{len(kfs)} keyframes, {np.mean([len(k['feats']) for k in kfs]):.0f} static features each, "
       f"{np.mean([len(b) for b in bows]):.0f} words each")
-
-# %% [markdown]
-# The L1 score $s(v_1, v_2) = 1 - \tfrac12 \lVert v_1 - v_2 \rVert_1 = \sum_i \min(v_1^i, v_2^i)$
-# of every pair of keyframes. Neighbours in time score high (the diagonal band); the loop shows
-# as a bright spot far from the diagonal, where the camera sees the start again.
-
-# %%
 S = bow_score_many(bows, voc.n_words)
 np.fill_diagonal(S, np.nan)
-fig, ax = plt.subplots(figsize=(5.5, 4.6))
-im = ax.imshow(S, cmap="magma")
-ax.set_xlabel("keyframe"); ax.set_ylabel("keyframe"); ax.set_title("BoW similarity")
-fig.colorbar(im, ax=ax, fraction=0.046)
-plt.show()
+fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
+im = axes[0].imshow(S, cmap="magma")
+axes[0].set_xlabel("keyframe")
+axes[0].set_ylabel("keyframe")
+axes[0].set_title("BoW similarity s")
+fig.colorbar(im, ax=axes[0], fraction=0.046)
+st = trajectory_style("ground truth")
+axes[1].plot(T_gt[:, 0, 3], T_gt[:, 1, 3], st["ls"], color=st["color"], marker=".")
+for k, dx in ((0, -14), (len(kfs) // 2, 5), (len(kfs) - 1, 5)):
+    axes[1].annotate(str(k), T_gt[k, :2, 3], xytext=(dx, 5), textcoords="offset points")
+axes[1].set_aspect("equal")
+axes[1].set_xlabel("x [m]")
+axes[1].set_ylabel("y [m]")
+axes[1].set_title("keyframe positions from above (z up)");
+
+# %% [markdown]
+# **What to look for**: neighbours in time score high (the bright band along the diagonal);
+# the loop shows as bright corners far from the diagonal: the last keyframes see the start
+# again, and the path (right) closes on itself there.
 
 # %% [markdown]
 # ### Querying the database
 #
-# The keyframe database keeps an **inverted index** (word → keyframes containing it). A query
-# scores only the keyframes that share words with it. ORB-SLAM2 then drops keyframes that are
-# covisible with the query (here: the `exclude` nearest in time) and keyframes scoring below the
-# query's lowest score to its covisible neighbours. Move the slider to query different keyframes.
+# The keyframe database keeps an **inverted index** (word -> keyframes containing it). A query
+# scores only the keyframes that share words with it. ORB-SLAM2 then drops keyframes covisible
+# with the query (here: the `exclude` nearest in time). Move the sliders to query other keyframes.
 
-# %%
+# %% figures=1
 db = KeyframeDatabase(voc.n_words)
 for i, b in enumerate(bows):
     db.add(i, b)
 
 
-def query(kf=len(bows) - 1, exclude=6):
-    near = set(range(kf - exclude, kf + exclude + 1))
+def draw_query(kf=len(bows) - 1, exclude=6):
     ids, common, score = db.scores(bows[kf])
-    keep = ~np.isin(ids, list(near))
-    fig, ax = plt.subplots(figsize=(9, 2.8))
-    ax.bar(ids[keep], score[keep], color="tab:blue", label="candidates")
-    ax.bar(ids[~keep], score[~keep], color="lightgray", label="covisible (excluded)")
-    ax.set_xlabel("keyframe"); ax.set_ylabel("score"); ax.set_title(f"scores of keyframe {kf}"); ax.legend()
-    plt.show()
+    keep = np.abs(ids - kf) > exclude
+    fig, ax = plt.subplots(figsize=(9, 3), constrained_layout=True)
+    ax.bar(ids[keep], score[keep], color=hex_color("loop"), label="candidates")
+    ax.bar(ids[~keep], score[~keep], color="0.75", label="covisible (excluded)")
+    ax.set_xlim(-1, len(bows))
+    ax.set_xlabel("keyframe")
+    ax.set_ylabel("score s")
+    ax.set_title(f"scores of keyframe {kf}")
+    ax.legend(fontsize="small")
+    return fig
 
 
-display(widgets.interactive(query, kf=widgets.IntSlider(value=len(bows) - 1, min=0, max=len(bows) - 1),
-                            exclude=widgets.IntSlider(value=6, min=1, max=20)))
+figure_explorer(draw_query, name="08 query", kf=int_slider("query keyframe", len(bows) - 1, 0, len(bows) - 1),
+                exclude=int_slider("exclude +-", 6, 1, 20));
 
 # %% [markdown]
-# ## 3. A detected loop, verified
+# **What to look for**: for the last keyframe the best candidate outside the excluded
+# neighbours is at the very start: the loop. For a keyframe in the middle of the path, nothing
+# far away scores high: no loop, as it should be.
+
+# %% [markdown]
+# ## 3. Verifying a candidate
 #
-# The last keyframe's best candidate far enough in time is checked geometrically: descriptor
-# matches (Hamming $\le 50$, ratio 0.75), then RANSAC over 3-point samples of the matched 3D
-# points (from depth) for the rigid transform $X_q = R X_c + t$. A match is an inlier when it
-# lands within $0.02 + 0.02 z$ metres. Green lines are inliers, red ones outliers.
+# A candidate is checked geometrically: descriptor matches (Hamming $\le 50$, ratio 0.75), then
+# RANSAC over 3-point samples of the matched 3D points (from depth) for the rigid transform
+# $X_q = R X_c + t$. A match is an inlier when $\lVert X_q - (R X_c + t) \rVert$ is below
+# $\tau(z) = \tau_{abs} + \tau_{rel}\, z$. Our defaults (2 cm + 2 cm per metre) are set for Kinect
+# noise; synthetic depth is cleaner, so we start tight (5 mm, no growth with depth) to see what
+# RANSAC separates. Candidates: the true loop (keyframe 1), two keyframes of the same stretch at
+# 8 and 41 cm from the query, and a keyframe on the other side of the room.
 
-# %%
+# %% figures=1
 q = len(kfs) - 1
-ids, common, score = db.scores(bows[q])
-far = ids < q - 10
-cand = int(ids[far][np.argmax(score[far])])
 cfg = LoopClosingConfig()
+CANDIDATES = {"1 (the loop)": 1, "4 (8 cm away)": 4, "7 (41 cm away)": 7, "15 (other side)": 15}
 
 
-def verify(cfg):
+def verify(cand, inlier_abs=cfg.inlier_abs, inlier_rel=cfg.inlier_rel):
     a, b = kfs[q], kfs[cand]
-    return verify_loop(a["feats"].descriptors, a["pts"], b["feats"].descriptors, b["pts"], cfg,
+    c = dataclasses.replace(cfg, inlier_abs=inlier_abs, inlier_rel=inlier_rel)
+    return verify_loop(a["feats"].descriptors, a["pts"], b["feats"].descriptors, b["pts"], c,
                        angle_q=a["feats"].angle, angle_c=b["feats"].angle, rng=0)
 
 
-def draw(inlier_abs=cfg.inlier_abs, inlier_rel=cfg.inlier_rel, match_ratio=cfg.match_ratio):
-    c = dataclasses.replace(cfg, inlier_abs=inlier_abs, inlier_rel=inlier_rel, match_ratio=match_ratio)
-    v = verify(c)
+def draw_verify(candidate="4 (8 cm away)", inlier_abs=0.005, inlier_rel=0.0):
+    cand = CANDIDATES[candidate]
+    v = verify(cand, inlier_abs, inlier_rel)
     a, b = kfs[q], kfs[cand]
-    img = np.hstack([a["frame"].rgb, b["frame"].rgb])
-    fig, ax = plt.subplots(figsize=(12, 4.5))
-    ax.imshow(img)
+    fig, axes = plt.subplots(1, 2, figsize=(15, 4.6), constrained_layout=True, gridspec_kw={"width_ratios": [2.3, 1]})
+    axes[0].imshow(np.hstack([a["frame"].rgb, b["frame"].rgb]))
     w = a["frame"].rgb.shape[1]
     ua, ub = a["feats"].uv[v.idx_q], b["feats"].uv[v.idx_c]
-    for p, r, ok in zip(ua, ub, v.inliers):
-        ax.plot([p[0], r[0] + w], [p[1], r[1]], "-", color="lime" if ok else "red", lw=0.6, alpha=0.8)
-    ax.axis("off")
-    ax.set_title(f"keyframe {q} vs {cand}: {v.n_matches} matches, {v.n_inliers} inliers -> "
-                 f"{'loop accepted' if v.accepted else 'rejected'}")
-    plt.show()
+    for ok, color in ((v.inliers, hex_color("static")), (~v.inliers, hex_color("estimate"))):
+        axes[0].plot(np.c_[ua[ok, 0], ub[ok, 0] + w].T, np.c_[ua[ok, 1], ub[ok, 1]].T, "-", color=color, lw=0.7)
+    for side in axes[0].spines.values():
+        side.set_edgecolor(hex_color("static") if v.accepted else hex_color("estimate"))
+        side.set_linewidth(5)
+    axes[0].set_xticks([])
+    axes[0].set_yticks([])
+    axes[0].set_title(f"keyframe {q} vs {cand}: {v.n_matches} matches, {v.n_inliers} inliers -> "
+                      f"{'loop accepted' if v.accepted else 'rejected'} (frame colour)")
+    if v.n_matches:
+        Xq, Xc = a["pts"][v.idx_q], b["pts"][v.idx_c]
+        r = np.linalg.norm(Xq - transform_points(v.T_q_c, Xc), axis=1)
+        axes[1].scatter(Xq[:, 2], 100 * r, s=12, c=np.where(v.inliers, hex_color("static"), hex_color("estimate")))
+        zz = np.linspace(0, np.nanmax(Xq[:, 2]) * 1.05, 50)
+        axes[1].plot(zz, 100 * (inlier_abs + inlier_rel * zz), "k:", label="tolerance")
+        axes[1].set_yscale("log")
+        axes[1].set_ylim(0.01, 100)
+        axes[1].legend(fontsize="small")
+    axes[1].set_xlabel("depth z in the query [m]")
+    axes[1].set_ylabel("3D residual [cm]")
+    axes[1].set_title("residuals under the pose found")
+    return fig
 
 
-display(widgets.interactive(draw, inlier_abs=widgets.FloatSlider(value=cfg.inlier_abs, min=0.0, max=0.1, step=0.005),
-                            inlier_rel=widgets.FloatSlider(value=cfg.inlier_rel, min=0.0, max=0.1, step=0.005),
-                            match_ratio=widgets.FloatSlider(value=cfg.match_ratio, min=0.5, max=1.0, step=0.05)))
-ver = verify(cfg)
-T_true = relative_pose(kfs[q]["T_gt"], kfs[cand]["T_gt"])
-print(f"verified T_q_c: translation error {np.linalg.norm(ver.T_q_c[:3, 3] - T_true[:3, 3]) * 100:.1f} cm against ground truth")
+figure_explorer(draw_verify, name="08 verification", probes={"inlier_abs": [0.001, 0.05]},
+                candidate=dropdown("candidate", list(CANDIDATES), "4 (8 cm away)"),
+                inlier_abs=float_slider("tau_abs [m]", 0.005, 0.001, 0.05, 0.001),
+                inlier_rel=float_slider("tau_rel [m/m]", 0.0, 0.0, 0.1, 0.005));
+ver = verify(1)
+T_true = relative_pose(kfs[q]["T_gt"], kfs[1]["T_gt"])
+print(f"the loop at the defaults: {ver.n_inliers} of {ver.n_matches} inliers, T_q_c translation error "
+      f"{100 * np.linalg.norm(ver.T_q_c[:3, 3] - T_true[:3, 3]):.2f} cm against the ground truth")
+
+# %% [markdown]
+# **What to look for**: the matches lie 2-2.5 m away (the back wall, the monitors), with
+# residuals from a millimetre to a few centimetres. At 5 mm about a third of the matches with
+# keyframe 4 are inliers, still more than the 20 needed; at 2 cm nearly all are. Keyframe 7, seen
+# from 41 cm further, has only 44 matches and is *rejected* at 5 mm (15 inliers): a tolerance
+# too tight for the depth noise loses real loops. The other side of the room has no matches at
+# all: a wrong place already fails at the descriptor stage. The loop itself (keyframe 1): all
+# matches are inliers at the defaults.
 
 # %% [markdown]
 # ## 4. Pose graph optimisation
 #
 # To see the correction without running the whole system, we make a drifting odometry from the
 # ground-truth relative poses with a small error per keyframe: a steady turn (yaw bias, the
-# typical drift of visual odometry) plus random noise. The pose graph has one edge per consecutive pair (the odometry) and one loop
-# edge with the verified relative pose. Minimising
-# $\sum w_{ij} \lVert \log(Z_{ij}^{-1} T_i^{-1} T_j)^\vee \rVert^2$ with the first keyframe fixed
-# bends the trajectory back onto itself. The sliders set the drift per keyframe.
+# typical drift of visual odometry) plus random noise. The pose graph has one edge per
+# consecutive pair (the odometry) and one loop edge with the verified relative pose; the first
+# keyframe is fixed. The sliders set the drift per keyframe.
 
-# %%
-T_gt = np.stack([k["T_gt"] for k in kfs])
-
-
+# %% figures=1
 def drift_and_close(yaw_bias_deg=0.6, rot_deg=0.2, trans_cm=0.5, seed=0):
     rng = np.random.default_rng(seed)
-    T = [T_gt[0]]
-    Z = []
+    T, Z = [T_gt[0]], []
     for k in range(1, len(T_gt)):
         # camera y points down in the synthetic office: a rotation about it is a yaw
         rot = rng.normal(0, np.radians(rot_deg), 3) + [0.0, np.radians(yaw_bias_deg), 0.0]
@@ -208,10 +262,9 @@ def drift_and_close(yaw_bias_deg=0.6, rot_deg=0.2, trans_cm=0.5, seed=0):
         Z.append(relative_pose(T_gt[k - 1], T_gt[k]) @ err)
         T.append(T[-1] @ Z[-1])
     T = np.stack(T)
-    edges = np.array([[k - 1, k] for k in range(1, len(T))] + [[cand, q]])
+    edges = np.array([[k - 1, k] for k in range(1, len(T))] + [[1, q]])
     meas = np.stack(Z + [se3_inv(ver.T_q_c)])
-    res = optimize_pose_graph(T, edges, meas, fixed=[0])
-    return T, res.poses
+    return T, optimize_pose_graph(T, edges, meas, fixed=[0]).poses
 
 
 def ate(T):
@@ -219,30 +272,72 @@ def ate(T):
     return float(np.sqrt(np.mean(np.sum((a.apply(T[:, :3, 3]) - T_gt[:, :3, 3]) ** 2, axis=1))))
 
 
-def show_graph(yaw_bias_deg=0.6, rot_deg=0.2, trans_cm=0.5):
+def draw_graph(yaw_bias_deg=0.6, rot_deg=0.2, trans_cm=0.5):
     before, after = drift_and_close(yaw_bias_deg, rot_deg, trans_cm)
-    fig, ax = plt.subplots(figsize=(6.5, 5.5))
-    ax.plot(T_gt[:, 0, 3], T_gt[:, 1, 3], "k-", lw=2, label="ground truth")
-    ax.plot(before[:, 0, 3], before[:, 1, 3], "r.-", label=f"drifting odometry (ATE {ate(before) * 100:.1f} cm)")
-    ax.plot(after[:, 0, 3], after[:, 1, 3], "g.-", label=f"after pose graph (ATE {ate(after) * 100:.1f} cm)")
-    ax.plot(after[[cand, q], 0, 3], after[[cand, q], 1, 3], "b-", lw=3, label="loop edge")
-    ax.set_aspect("equal"); ax.set_xlabel("x (m)"); ax.set_ylabel("y (m)"); ax.legend(fontsize=8)
-    ax.set_title("keyframe positions, top view")
-    plt.show()
+    fig, ax = plt.subplots(figsize=(6.8, 5.8), constrained_layout=True)
+    st = trajectory_style("ground truth")
+    ax.plot(T_gt[:, 0, 3], T_gt[:, 1, 3], st["ls"], color=st["color"], lw=2, label="ground truth")
+    ax.plot(before[:, 0, 3], before[:, 1, 3], ".-", color=hex_color("keyframe"),
+            label=f"drifting odometry (ATE {ate(before) * 100:.1f} cm)")
+    ax.plot(after[:, 0, 3], after[:, 1, 3], ".-", color=hex_color("estimate"),
+            label=f"after the pose graph (ATE {ate(after) * 100:.1f} cm)")
+    ax.plot(after[[1, q], 0, 3], after[[1, q], 1, 3], "-", color=hex_color("loop"), lw=3, label="loop edge")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize="small")
+    ax.set_title("keyframe positions from above")
+    return fig
 
 
-display(widgets.interactive(show_graph, yaw_bias_deg=widgets.FloatSlider(value=0.6, min=0.0, max=2.0, step=0.1),
-                            rot_deg=widgets.FloatSlider(value=0.2, min=0.0, max=1.0, step=0.1),
-                            trans_cm=widgets.FloatSlider(value=0.5, min=0.0, max=3.0, step=0.5)))
+figure_explorer(draw_graph, name="08 pose graph", yaw_bias_deg=float_slider("yaw bias [deg/kf]", 0.6, 0.0, 2.0, 0.1),
+                rot_deg=float_slider("rotation noise [deg]", 0.2, 0.0, 1.0, 0.1),
+                trans_cm=float_slider("translation noise [cm]", 0.5, 0.0, 3.0, 0.5));
 before, after = drift_and_close()
 print(f"ATE before {ate(before) * 100:.1f} cm, after {ate(after) * 100:.1f} cm")
 
 # %% [markdown]
-# ## In the full system
+# **What to look for**: the drifting odometry curls away from the ground truth and its end
+# misses its start; the optimised graph closes the loop and spreads the correction along the
+# path, so the middle moves too although no edge touches it directly. Large noise cannot be
+# undone by one loop edge: the ATE after stays above zero.
 #
-# `dynslam run SEQDIR --out OUT` runs the same steps inside the SLAM system (`LoopCloser`):
-# candidates from the keyframe database with covisibility groups, the consistency check over
-# three keyframes, verification, then the pose graph over the *essential graph* (spanning tree,
-# strong covisibility edges, loop edges) and the correction of every map point. `summary.json`
-# counts the loops and `keyframes.npz` lists the loop edges; `--no-loop` turns loop closing off
-# to compare.
+# In the full system (`dynslam run`), the `LoopCloser` runs the same steps with covisibility
+# groups, a consistency check over three keyframes, and a pose graph over the *essential graph*;
+# `summary.json` counts the loops and `--no-loop` turns loop closing off.
+
+# %% [markdown]
+# ### Exercise 1: the L1 score by hand
+#
+# Compute the score $s$ of keyframes 0 and 1 from their vectors (`bows[0]`, `bows[1]`: sparse,
+# with `.words` and `.weights`, already L1-normalised): $\sum_i \min(v_1^i, v_2^i)$ over shared words.
+
+# %% exercise="08.1"
+answer = None  # your code: s in [0, 1]
+
+# %% check="08.1"
+check("08.1", answer, bow_score(bows[0], bows[1]))
+
+# %% [markdown]
+# ### Exercise 2: the idf of a word
+#
+# The word with the smallest idf, `w = int(np.argmin(voc.idf))`: in how many of the
+# `voc.n_images` training images does it occur ($N_i$)? Invert $\mathrm{idf} = \log(N / N_i)$.
+
+# %% exercise="08.2"
+answer = None  # your code: N_i (a number)
+
+# %% check="08.2"
+check("08.2", answer, voc.n_images / np.exp(voc.idf.min()), rtol=1e-6)
+
+# %% [markdown]
+# ### Exercise 3: how much does the loop help?
+#
+# At the default drift, by what factor does the pose graph reduce the ATE
+# (`ate(before) / ate(after)`)? Predict first: more or less than 2?
+
+# %% exercise="08.3"
+answer = None  # your code
+
+# %% check="08.3"
+check("08.3", answer, ate(before) / ate(after))

@@ -31,12 +31,10 @@
 # (8-frame sequences, so that it runs in seconds); `docs/sweeps.md` has the whole spec format.
 
 # %%
-import importlib.util
 import json
 import tempfile
 from pathlib import Path
 
-import ipywidgets as widgets
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -45,15 +43,11 @@ from IPython.display import display
 from dynslam_lab.experiments.sweep import deterministic_columns, is_finished, run_sweep
 from dynslam_lab.experiments.sweep_plots import plot_metric
 from dynslam_lab.experiments.sweep_spec import expand_values, load_spec
-
-# the solutions of the exercises (used by the checks when an exercise is not done yet)
-_sol_path = next(p for p in (Path("solutions"), Path("notebooks/solutions")) if p.is_dir()) / "11_sweeps.py"
-_spec = importlib.util.spec_from_file_location("solutions_11_sweeps", _sol_path)
-solutions = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(solutions)
+from dynslam_lab.viz.exercises import check
+from dynslam_lab.viz.widgets import dropdown, figure_explorer
 
 # %% [markdown]
-# ## The spec
+# ## The spec and the runs
 # Two synthetic presets: `walking_xyz` (the camera translates: the epipolar geometry is defined) and
 # `walking_static` (the camera hardly moves: $F$ is undefined, the epipolar stage abstains and the multi-view
 # check does the work), two seeds each (textures and sensor noise change with the seed), the `geometry` filter
@@ -95,7 +89,6 @@ except ValueError as exc:
     print("\n", str(exc)[:230], "...")
 
 # %% [markdown]
-# ## Run it on a process pool
 # `run_sweep` (what `dynslam sweep sweep.toml --out out --workers 2` calls) starts 2 worker processes, one task
 # per run; each worker renders its sequence (cached on disk) and runs the same pipeline as `dynslam run`,
 # scoring each keypoint verdict against the renderer's truth. Each run writes `out/runs/RUN_ID/`; the table
@@ -110,10 +103,10 @@ cols = ["sequence", "seed", THR, "tracked", "ate.rmse", "keypoints.precision", "
 display(table[cols].round(4))
 
 # %% [markdown]
-# ## The sensitivity plots
-# One line per sequence (the mean over seeds), the band from the lowest to the highest seed, a dot per seed.
+# The sensitivity plots: one line per sequence (the mean over seeds), the band from the lowest to the highest
+# seed, a dot per seed.
 
-# %%
+# %% figures=1
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
 for ax, metric in zip(axes, ["keypoints.recall", "keypoints.precision"]):
     for i, (name, g) in enumerate(table.groupby("sequence", sort=False)):
@@ -133,20 +126,21 @@ plt.show()
 # are flat: with a camera at rest $F$ is undefined, the epipolar stage abstains whatever $\mu$ is, and the
 # multi-view check alone decides. The band is the spread over two seeds: narrow here, so the trend is not
 # one seed's accident.
-#
+
+# %% [markdown]
+# ## Metric by metric
 # The same figures, saved by `dynslam sweep` as `out/plots/METRIC__AXIS.png`, come from `plot_metric`; pick
 # a metric below (the first figure is static, so it also shows in an HTML export).
 
-# %%
-metrics = ["keypoints.recall", "keypoints.precision", "ate.rmse", "rpe.trans.rmse", "tracked"]
-display(plot_metric(table, "ate.rmse", THR, [THR]))
+# %% figures=1
+METRICS = ["ate.rmse", "keypoints.recall", "keypoints.precision", "rpe.trans.rmse", "tracked"]
 
 
-def show(metric="ate.rmse"):
-    display(plot_metric(table, metric, THR, [THR]))
+def draw_metric(metric):
+    return plot_metric(table, metric, THR, [THR])
 
 
-display(widgets.interactive(show, metric=widgets.Dropdown(options=metrics, value="ate.rmse")))
+figure_explorer(draw_metric, name="11 metric", metric=dropdown("metric", METRICS, "ate.rmse"));
 
 # %% [markdown]
 # **What to look for.** ATE over 8 frames is a few millimetres, and on `walking_xyz` the two seeds (the dots,
@@ -154,7 +148,8 @@ display(widgets.interactive(show, metric=widgets.Dropdown(options=metrics, value
 # are the sensitive measure of such short runs; ranking by ATE needs longer sequences and more seeds.
 
 # %% [markdown]
-# ## Resume: a run is named by its inputs
+# ## Resume, and the same spec on a cluster
+# ### A run is named by its inputs
 # Each folder under `out/runs/` is named by the SHA-256 of everything that decides the run: the sequence (the
 # renderer's cache key: preset, length, seed, renderer version), the filter, the detector, the whole config
 # and the package version. Starting the sweep again finds every run finished (`summary.json` complete) and
@@ -167,7 +162,7 @@ same = again.table[deterministic_columns(again.table)].equals(table[deterministi
 print("same table (all but the timings):", same)
 
 # %% [markdown]
-# ## The same spec on a Dask cluster
+# ### The same spec on a Dask cluster
 # On a cluster, start a scheduler and workers (one thread each: SLAM is Python-heavy), in the same environment
 # (`pip install 'dynslam_lab[sweeps]'`), with the output folder on a filesystem every worker sees:
 #
@@ -210,68 +205,69 @@ dask_rows = dask_report.table[det].reset_index(drop=True)
 pd.testing.assert_frame_equal(pool_rows, dask_rows)  # same run ids (same inputs), same numbers
 print("the cluster's 3 runs equal the pool's, run ids included")
 
+# %% figures=1
+fig, ax = plt.subplots(figsize=(4.2, 3.6))
+for metric, marker in [("keypoints.recall", "o"), ("keypoints.precision", "s")]:
+    ax.scatter(pool_rows[metric], dask_rows[metric], marker=marker, s=50, label=metric)
+ax.plot([0, 1], [0, 1], color="0.5", lw=0.8, zorder=0)
+ax.set_xlabel("process pool")
+ax.set_ylabel("Dask cluster")
+ax.set_title("the same 3 runs, two engines")
+ax.legend()
+plt.show()
+
 # %% [markdown]
-# ## Exercises
+# **What to look for.** Every point lies on the diagonal: the engine changes where a run executes, never its
+# result, because a run depends only on its inputs (the same inputs give the same run id and the same folder).
+
+# %% [markdown]
+# ### Exercise 1: a log range
 #
-# **Exercise 1: a log range.** In a spec, `{start = 0.25, stop = 4.0, num = 5, scale = "log"}` gives values
-# evenly spaced in log between `start` and `stop` (both included). Write `log_range(start, stop, num)` with
-# numpy and compare with the library's `expand_values`.
+# In a spec, `{start = 0.25, stop = 4.0, num = 5, scale = "log"}` gives values evenly spaced in log between
+# `start` and `stop` (both included): $v_i = \text{start} \cdot (\text{stop}/\text{start})^{i/(n-1)}$.
+# Compute the five values with numpy, as a list.
 
-# %%
-def log_range(start, stop, num):
-    # your code here: return the num values as a list
-    return None
+# %% exercise="11.1"
+answer = None  # your code: the 5 values
 
-
-answer = log_range(0.25, 4.0, 5)
-if answer is None:
-    print("exercise 1 not done yet: the check runs on the solution (solutions/11_sweeps.py)")
-    answer = solutions.log_range(0.25, 4.0, 5)
-assert np.allclose(answer, expand_values({"start": 0.25, "stop": 4.0, "num": 5, "scale": "log"}, "ex1"))
-assert np.allclose(answer, [0.25, 0.5, 1.0, 2.0, 4.0])
+# %% check="11.1"
+check("11.1", answer, expand_values({"start": 0.25, "stop": 4.0, "num": 5, "scale": "log"}, "ex1"))
 
 # %% [markdown]
-# **Exercise 2: pooled precision.** The plot averages each seed's precision. Pool the counts instead (a
-# micro-average): for each sequence and $\mu$, sum TP and FP over the seeds, then TP / (TP + FP). Write
-# `pooled_precision(table)` returning a pandas Series indexed by `(sequence, threshold)`. The check recomputes
-# it from each run folder's `sweep_run.json`, not from the table.
+# ### Exercise 2: pooled precision
+#
+# The plot averages each seed's precision. Pool the counts instead (a micro-average): for each sequence and
+# $\mu$, sum TP and FP over the seeds (`keypoints.tp`, `keypoints.fp`), then TP / (TP + FP). Give a pandas
+# Series indexed by `(sequence, threshold)`. The check recomputes it from each run folder's `sweep_run.json`,
+# not from the table.
 
-# %%
-def pooled_precision(table):
-    # your code here
-    return None
+# %% exercise="11.2"
+answer = None  # your code: a Series indexed by (sequence, threshold)
 
-
-answer = pooled_precision(table)
-if answer is None:
-    print("exercise 2 not done yet: the check runs on the solution")
-    answer = solutions.pooled_precision(table)
+# %% check="11.2"
 counts = {}
 for t in tasks:
     kp = json.loads((Path(t.run_dir) / "sweep_run.json").read_text())["keypoints"]
     c = counts.setdefault((t.sequence.label, dict(t.params)[THR]), [0, 0])
     c[0] += kp["tp"]
     c[1] += kp["fp"]
-for key, (tp, fp) in counts.items():
-    assert np.isclose(answer.loc[key], tp / (tp + fp) if tp + fp else np.nan, equal_nan=True), key
+pooled = {key: (tp / (tp + fp) if tp + fp else np.nan) for key, (tp, fp) in counts.items()}
+check("11.2", answer, test=lambda a: all(np.isclose(a.loc[k], v, equal_nan=True) for k, v in pooled.items()),
+      hint="sum tp and fp per (sequence, threshold) first, divide last")
 
 # %% [markdown]
-# **Exercise 3: what a changed spec redoes.** Add the value 4.0 to the grid and a third seed to `walking_xyz`.
-# Predict how many runs the new spec has and how many of them are already finished in `work / "out"`, as
-# `(total, finished)`. The check plans the new spec (no run is done) and asks each run folder.
+# ### Exercise 3: what a changed spec redoes
+#
+# Add the value 4.0 to the grid and a third seed to `walking_xyz`. Predict how many runs the new spec has and
+# how many of them are already finished in `work / "out"`, as `(total, finished)`. The check plans the new spec
+# (no run is done) and asks each run folder.
 
-# %%
-def predict_extension():
-    # your code here: return (total, finished)
-    return None
+# %% exercise="11.3"
+answer = None  # your code: (total, finished)
 
-
-answer = predict_extension()
-if answer is None:
-    print("exercise 3 not done yet: the check runs on the solution")
-    answer = solutions.predict_extension()
+# %% check="11.3"
 bigger = SPEC.replace("[0.5, 1.0, 2.0]", "[0.5, 1.0, 2.0, 4.0]").replace("seeds = [0, 1]", "seeds = [0, 1, 2]", 1)
 (work / "bigger.toml").write_text(bigger)
 planned = load_spec(work / "bigger.toml").tasks(work / "out")
-assert answer == (len(planned), sum(is_finished(t.run_dir) for t in planned)), (answer, len(planned))
-print(f"{len(planned)} runs, {answer[1]} finished: `dynslam sweep bigger.toml --out out` would do {len(planned) - answer[1]}")
+check("11.3", answer, (len(planned), sum(is_finished(t.run_dir) for t in planned)),
+      hint="runs whose inputs did not change keep their names")

@@ -1,38 +1,47 @@
 """The 3D scene of a run in viser: trajectories, keyframes, sparse and dense maps, loops.
 
-What ``dynslam view OUTDIR`` shows and what a notebook embeds with :func:`show_inline`:
+What ``dynslam view OUTDIR`` shows and what a notebook embeds with :func:`show_inline`, in the
+colours of every other figure (:mod:`dynslam_lab.viz.colors`, listed in the on-screen legend):
 
-* the estimated trajectory (red) and the ground truth (blue, aligned to the estimate with
+* the estimated trajectory (red) and the ground truth (near-black, aligned to the estimate with
   Umeyama/Horn, so both share the estimate's world frame);
 * every keyframe as a wireframe frustum (orange), all of them in *one* line-segment set,
   and image frustums with the keyframe thumbnails for up to ``max_image_frustums`` evenly
   spaced keyframes;
-* the sparse map points (their colour, or green) and the keypoints judged dynamic (magenta);
+* the sparse map points (their colour, or green) and the keypoints judged dynamic (magenta):
+  only those of the frames within ``dynamic_window`` of the playback frame, all on demand;
 * the dense static map ``map.ply``;
-* loop edges between keyframe centres (green);
-* a playback slider stepping through the tracked frames: a white frustum at the frame's
-  pose, and the thumbnail of the newest keyframe at or before it.
+* loop edges between keyframe centres (teal);
+* a playback slider stepping through the tracked frames: a blue frustum at the frame's pose,
+  and the thumbnail of the newest keyframe at or before it.
 
 Everything goes to the browser in a few large messages (one point cloud per layer, one
 line-segment set per polyline family, the path thinned to ``max_path_points``), and in stages,
 so that the first picture does not wait for the large layers (``benchmarks/view_startup.py``):
 
-1. at once: the trajectories, loop edges, the playback frustum and the GUI;
+1. at once: the trajectories, loop edges, the playback frustum, the GUI and the legend;
 2. ``defer_layers`` seconds after the first browser connects: the keyframes (wireframes and
-   thumbnails) and the sparse map;
-3. ``defer_dense`` seconds later: the dense map, which :func:`load_run` can leave on disk
-   (``dense=False``) to be read in the background while the server already answers.
+   thumbnails), the sparse map, the dynamic points of the current window, and the dense map
+   when it has at most ``preview_dense_points`` points (a demo-size run);
+3. for a larger dense map, ``defer_dense`` seconds later a seeded subset of
+   ``preview_dense_points``, and ``defer_dense`` seconds after that all of it (up to
+   ``max_dense_points``). :func:`load_run` can leave ``map.ply`` on disk (``dense=False``) to
+   be read in the background while the server already answers.
+
+The initial camera frames the whole scene (path and maps) with viser's 75 degree field of view.
+The server binds to ``127.0.0.1`` unless a host is given on purpose, and answers only requests
+whose ``Host`` is its own address and whose ``Origin``, if any, is its own page
+(:mod:`dynslam_lab.viz.access`): other web pages and DNS-rebinding attacks are refused.
 
 Conventions: poses ``T_w_c`` map camera to world (OpenCV camera axes: x right, y down,
 z forward, which is also viser's frustum convention). Quaternions are ``x y z w`` in TUM
-files and ``w x y z`` in viser: :func:`wxyz_from_matrix` is the only conversion. The server
-binds to ``127.0.0.1`` unless a host is given on purpose (viser's default, ``0.0.0.0``,
-would expose the scene to the network).
+files and ``w x y z`` in viser: :func:`wxyz_from_matrix` is the only conversion.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import html
 import socket
 import threading
 import time
@@ -48,6 +57,8 @@ from ..evaluation.trajectory import Trajectory, read_tum_trajectory
 from ..geometry.se3 import matrix_to_quat_xyzw
 from ..mapping.ply import read_ply
 from ..runs.layout import read_run
+from .access import guard_viser_server
+from .colors import PALETTE, hex_color
 
 __all__ = [
     "SceneConfig",
@@ -59,24 +70,20 @@ __all__ = [
     "polyline_segments",
     "scene_bounds",
     "initial_view",
+    "dynamic_pose_index",
     "build_scene",
     "start_viewer",
     "play_loop",
     "show_inline",
     "free_port",
     "COLORS",
+    "VIEWER_FOV_Y",
 ]
 
-#: RGB colours of the layers (uint8).
-COLORS = {
-    "estimate": (230, 40, 30),
-    "ground_truth": (30, 90, 230),
-    "keyframe": (255, 150, 0),
-    "current": (20, 20, 20),
-    "static": (60, 180, 75),
-    "dynamic": (220, 0, 220),
-    "loop": (0, 200, 0),
-}
+#: RGB colours (uint8) of the layers: the shared palette of :mod:`dynslam_lab.viz.colors`.
+COLORS = {k: PALETTE[k] for k in ("estimate", "ground_truth", "keyframe", "current", "static", "dynamic", "loop")}
+#: viser's vertical field of view of the initial camera (radians), used to frame the scene.
+VIEWER_FOV_Y = float(np.deg2rad(75.0))
 
 
 @dataclass(frozen=True)
@@ -88,19 +95,22 @@ class SceneConfig:
     point_size_sparse: float = 0.02  # metres (ours)
     point_size_dense: float = 0.012  # metres (ours; ~ the dense map's 2 cm voxels)
     max_dense_points: int = 1_000_000  # dense points sent at most, random subset with seed=0 (ours)
+    preview_dense_points: int = 150_000  # dense points sent with the keyframes (all of a demo-size map; ours)
     max_image_frustums: int = 40  # keyframes shown with their thumbnail at start-up (ours)
-    defer_layers: float = 2.0  # seconds after the first browser connects before keyframes and sparse map are sent (ours)
-    defer_dense: float = 2.0  # seconds after those before the dense map is sent (ours; both 0 = all at once)
+    dynamic_window: int = 15  # frames either side of the playback frame whose dynamic points are drawn (ours)
+    defer_layers: float = 2.0  # seconds after the first browser connects before keyframes and maps are sent (ours)
+    defer_dense: float = 2.0  # seconds after those before a large dense map is sent whole (ours; both 0 = all at once)
     max_path_points: int = 3000  # trajectory vertices drawn at most, evenly spaced (playback keeps all; ours)
-    fov_y: float = float(2 * np.arctan(240 / 525))  # radians, vertical field of view, 49 deg (Kinect, f = 525 px)
+    fov_y: float = float(2 * np.arctan(240 / 525))  # radians, vertical field of view of frustums, 49 deg (Kinect, f = 525 px)
     aspect: float = 4 / 3  # width / height of frustums (640 x 480)
-    gui: bool = True  # add the playback slider and layer toggles (False for a static notebook embed)
+    gui: bool = True  # add the playback slider, layer toggles and legend (False for a static notebook embed)
 
     def __post_init__(self) -> None:
         for name in ("frustum_scale", "trajectory_thickness", "point_size_sparse", "point_size_dense", "fov_y", "aspect"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SceneConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("max_dense_points", "max_image_frustums", "defer_layers", "defer_dense"):
+        for name in ("max_dense_points", "preview_dense_points", "max_image_frustums", "dynamic_window",
+                     "defer_layers", "defer_dense"):
             if getattr(self, name) < 0:
                 raise ValueError(f"SceneConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.max_path_points < 2:
@@ -120,7 +130,8 @@ class RunData:
         ``(K,)``, ``(K,)``, ``(K, 4, 4)`` ``T_w_c``, ``(K,)`` seconds (None when absent).
     loop_edges : ``(L, 2)`` keyframe ids.
     map_xyz, map_rgb : sparse map points ``(M, 3)`` metres, ``(M, 3)`` uint8 (``map_points.npz``).
-    dynamic_xyz : ``(D, 3)`` keypoints judged dynamic (``dynamic_points.npz``).
+    dynamic_xyz, dynamic_frame : ``(D, 3)`` keypoints judged dynamic and ``(D,)`` the frame
+        index each was seen in (``dynamic_points.npz``; the frames may be absent: None).
     dense_xyz, dense_rgb : dense static map (``map.ply``); None until read when
         :func:`load_run` was told ``dense=False`` (then :meth:`load_dense` reads it).
     dense_path, dense_count : ``map.ply`` and its number of points (from its header).
@@ -138,6 +149,7 @@ class RunData:
     map_xyz: np.ndarray | None = None
     map_rgb: np.ndarray | None = None
     dynamic_xyz: np.ndarray | None = None
+    dynamic_frame: np.ndarray | None = None
     dense_xyz: np.ndarray | None = None
     dense_rgb: np.ndarray | None = None
     dense_path: Path | None = None
@@ -193,6 +205,9 @@ def load_run(outdir: str | Path, ground_truth: str | Path | Trajectory | None = 
         run.map_rgb = rgb.reshape(-1, 3).astype(np.uint8) if rgb is not None else None
     if contents.dynamic_points is not None:
         run.dynamic_xyz = contents.dynamic_points["xyz"].astype(np.float64)
+        fr = contents.dynamic_points.get("frame")
+        if fr is not None and fr.reshape(-1).shape == (len(run.dynamic_xyz),):
+            run.dynamic_frame = fr.reshape(-1).astype(np.int64)
     if dense and run.dense_path is not None:
         run.load_dense()
     gt = _find_ground_truth(run.outdir, run.summary, ground_truth)
@@ -268,16 +283,26 @@ def frustum_segments(poses: np.ndarray, fov_y: float, aspect: float, scale: floa
 
 
 def scene_bounds(run: RunData) -> tuple[np.ndarray, float]:
-    """Centre ``(3,)`` and radius (metres) of the camera path (or the map when there is none)."""
-    parts = [x for x in (run.trajectory.positions if run.trajectory is not None else None,
-                         run.kf_poses[:, :3, 3] if run.kf_poses is not None else None) if x is not None and len(x)]
-    if not parts:
-        parts = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
-    if not parts:
+    """Centre ``(3,)`` and radius (metres) of the sphere the initial view frames.
+
+    The centre is that of the box holding the camera path and the bulk of the maps (2nd to
+    98th percentile per axis, so stray points do not shrink the view); the radius holds the
+    whole path, and at least half of that box (the path's surroundings fill the picture, the far
+    walls may be cut), and at least 0.75 m (a desk-sized view).
+    """
+    path = run.trajectory.positions if run.trajectory is not None else (
+        run.kf_poses[:, :3, 3] if run.kf_poses is not None else None)
+    boxes = [] if path is None or not len(path) else [(path.min(axis=0), path.max(axis=0))]
+    box = _map_box(run)
+    if box is not None:
+        boxes.append(box)
+    if not boxes:
         return np.zeros(3), 1.0
-    P = np.concatenate(parts)
-    lo, hi = np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)
-    return (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)) / 2, 0.75)  # at least a desk-sized view
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    centre = (lo + hi) / 2
+    r_path = 1.1 * float(np.linalg.norm(path - centre, axis=1).max()) if boxes and path is not None and len(path) else 0.0
+    return centre, max(r_path, 0.5 * float(np.linalg.norm(hi - lo)) / 2, 0.75)
 
 
 def _up_direction(run: RunData) -> np.ndarray:
@@ -290,12 +315,15 @@ def _up_direction(run: RunData) -> np.ndarray:
     return up / n if n > 1e-6 else np.array([0.0, 0.0, 1.0])
 
 
-def initial_view(run: RunData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def initial_view(run: RunData, fov_y: float = VIEWER_FOV_Y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the viewer's camera starts: ``(eye (3,), look_at (3,), up (3,))`` in metres.
 
-    Behind and above the cameras, looking past the path's centre in the direction the cameras
-    look on average (where the map is); for paths whose cameras look all around (a loop), from
-    above and to the side, at the path's centre.
+    It looks at the centre of :func:`scene_bounds` from far enough that its sphere fits the
+    vertical field of view ``fov_y``: from behind and above the cameras, 35 degrees
+    down, along the direction they look on average; for paths whose cameras look all around
+    (a loop), from the side and 55 degrees above. The eye stays inside the mapped space (the
+    2nd-98th percentile box of the maps, less 5 cm): a room's walls or ceiling between the eye
+    and the scene would hide it, so the eye comes closer along the same line of sight.
     """
     centre, radius = scene_bounds(run)
     up = _up_direction(run)
@@ -303,13 +331,56 @@ def initial_view(run: RunData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     fwd = np.zeros(3) if poses is None or len(poses) == 0 else poses[:, :3, 2].mean(axis=0)
     fwd = fwd - (fwd @ up) * up  # horizontal part of the mean viewing direction
     if np.linalg.norm(fwd) > 0.3:
-        fwd /= np.linalg.norm(fwd)
-        return centre - radius * (2.0 * fwd - 1.2 * up), centre + radius * fwd, up
-    side = np.cross(up, [1.0, 0.0, 0.0])
-    if np.linalg.norm(side) < 1e-3:
-        side = np.cross(up, [0.0, 1.0, 0.0])
-    side /= np.linalg.norm(side)
-    return centre + radius * (1.6 * up + 1.6 * side), centre, up
+        horizontal, down = fwd / np.linalg.norm(fwd), np.deg2rad(35.0)
+    else:
+        side = np.cross(up, [1.0, 0.0, 0.0])
+        if np.linalg.norm(side) < 1e-3:
+            side = np.cross(up, [0.0, 1.0, 0.0])
+        horizontal, down = -side / np.linalg.norm(side), np.deg2rad(55.0)
+    view = np.cos(down) * horizontal - np.sin(down) * up  # unit viewing direction
+    distance = 1.05 * radius / np.sin(fov_y / 2)
+    box = _map_box(run)
+    if box is not None:
+        # stay inside the mapped space (a room's walls or ceiling between the eye and the scene
+        # would hide it): come closer along the same line of sight
+        lo, hi = box[0] + 0.05, box[1] - 0.05
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(view > 1e-9, (centre - lo) / view, np.where(view < -1e-9, (centre - hi) / view, np.inf))
+        distance = float(np.clip(np.min(t), 0.5, distance)) if np.all(lo < hi) else distance
+    return centre - distance * view, centre, up
+
+
+def _map_box(run: RunData) -> tuple[np.ndarray, np.ndarray] | None:
+    """2nd and 98th percentiles ``(3,)`` per axis of the maps' points (an even subset), or None."""
+    maps = [x for x in (run.map_xyz, run.dense_xyz) if x is not None and len(x)]
+    if not maps:
+        return None
+    P = np.concatenate([m[:: max(1, len(m) // 50_000)] for m in maps])  # percentiles of 1e6 points cost 0.1 s
+    P = P[np.isfinite(P).all(axis=1)]
+    return (np.percentile(P, 2, axis=0), np.percentile(P, 98, axis=0)) if len(P) else None
+
+
+def dynamic_pose_index(run: RunData) -> np.ndarray | None:
+    """``(D,)`` index into the trajectory of the pose nearest each dynamic point's frame, or None.
+
+    The frames are sequence indices; their times are interpolated from the keyframes' frame
+    indices and timestamps (a line fitted through them: a constant frame rate), else the
+    trajectory index is taken to be the frame index (every frame tracked).
+    """
+    if run.dynamic_frame is None or run.trajectory is None or len(run.trajectory) == 0:
+        return None
+    frames = run.dynamic_frame.astype(np.float64)
+    n = len(run.trajectory)
+    kf_i, kf_t = run.kf_frame_index, run.kf_timestamps
+    if kf_i is not None and kf_t is not None and len(np.unique(kf_i)) >= 2 and np.isfinite(kf_t).all():
+        slope, offset = np.polyfit(kf_i.astype(np.float64), kf_t, 1)
+        t = offset + slope * frames
+        stamps = run.trajectory.timestamps
+        j = np.clip(np.searchsorted(stamps, t), 1, n - 1) if n > 1 else np.zeros(len(t), np.int64)
+        if n > 1:
+            j = np.where(np.abs(stamps[j - 1] - t) <= np.abs(stamps[j] - t), j - 1, j)
+        return j.astype(np.int64)
+    return np.clip(frames, 0, n - 1).astype(np.int64)
 
 
 # --------------------------------------------------------------------------- scene
@@ -322,6 +393,8 @@ class SceneHandles:
     nodes : layer name -> viser scene handle; layers of the later stages (``keyframes``,
         ``kf<ID>`` thumbnails, ``sparse``, ``dynamic``, ``dense``) appear once sent.
     slider, play : the playback GUI controls (None without GUI).
+    legend : the legend's GUI handle (None without GUI); ``legend_rows`` its (name, colour) rows.
+    dynamic : the dynamic points' window (:class:`DynamicWindow`), or None.
     build_seconds : time :func:`build_scene` took (the first stage only).
     frame_poses : ``(N, 4, 4)`` poses the playback steps through.
     on_frame : callback moving the playback to a frame index.
@@ -333,6 +406,9 @@ class SceneHandles:
     nodes: dict = field(default_factory=dict)
     slider: object | None = None
     play: object | None = None
+    legend: object | None = None
+    legend_rows: list = field(default_factory=list)
+    dynamic: "DynamicWindow | None" = None
     build_seconds: float = 0.0
     frame_poses: np.ndarray | None = None
     on_frame: Callable[[int], None] | None = None
@@ -419,22 +495,267 @@ class SceneHandles:
             self.on_frame(int(i))
 
 
+class DynamicWindow:
+    """The dynamic keypoints of the frames near the playback frame, or all of them on demand.
+
+    Points are kept sorted by the trajectory index of their frame (:func:`dynamic_pose_index`),
+    so a window is one slice. Without frame information every point is always shown.
+    """
+
+    def __init__(self, xyz: np.ndarray, pose_index: np.ndarray | None, window: int):
+        if pose_index is None:
+            self.xyz, self.pose = np.asarray(xyz, np.float32), None
+        else:
+            order = np.argsort(pose_index, kind="stable")
+            self.xyz, self.pose = np.asarray(xyz, np.float32)[order], np.asarray(pose_index)[order]
+        self.window = int(window)
+        self.show_all = self.pose is None
+        self.frame = 0
+        self.node = None
+
+    def points(self) -> np.ndarray:
+        """``(n, 3)`` float32 points shown now."""
+        if self.show_all:
+            return self.xyz
+        a = np.searchsorted(self.pose, self.frame - self.window, side="left")
+        b = np.searchsorted(self.pose, self.frame + self.window, side="right")
+        return self.xyz[a:b]
+
+    def set_frame(self, i: int) -> None:
+        self.frame = int(i)
+        self.push()
+
+    def set_show_all(self, on: bool) -> None:
+        self.show_all = bool(on) or self.pose is None
+        self.push()
+
+    def push(self) -> None:
+        """Send the current points to the node (once it exists)."""
+        if self.node is not None:
+            self.node.points = self.points()
+            self.node.colors = np.array(COLORS["dynamic"], np.uint8)
+
+
 def _thumb(path: Path) -> np.ndarray | None:
-    import cv2
+    import cv2  # heavy: only once thumbnails are drawn (keeps `dynslam view`'s start short)
 
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def build_scene(server, run: RunData, config: SceneConfig | None = None) -> SceneHandles:
-    """Add a run's layers (and the playback GUI) to a viser server.
+def _some(a) -> bool:
+    return a is not None and len(a) > 0
 
-    The trajectories, loop edges, playback frustum and GUI are sent at once. With the GUI on
-    and a delay configured, the keyframes and sparse map follow ``config.defer_layers``
-    seconds after the first browser connects and the dense map ``config.defer_dense`` seconds
-    after them (a large ``map.ply`` left on disk by ``load_run(..., dense=False)`` is read in
-    a background thread meanwhile); otherwise (notebook embeds) everything is sent before this
-    returns. :meth:`SceneHandles.add_deferred` sends what is left at any time.
+
+def _add_paths(scene, run: RunData, config: SceneConfig, h: SceneHandles) -> None:
+    """Stage 1: the trajectories and loop edges (small, and what the first picture shows)."""
+    for key, traj in (("ground_truth", run.ground_truth), ("estimate", run.trajectory)):
+        if traj is not None and len(traj) >= 2:
+            h.layer(key, scene.add_line_segments(
+                f"/trajectory/{key}", polyline_segments(traj.positions, config.max_path_points).astype(np.float32),
+                COLORS[key], thickness=config.trajectory_thickness, thickness_units="screen"))
+    if run.kf_poses is not None and _some(run.loop_edges):
+        pos_of = {int(i): p for i, p in zip(run.kf_ids, run.kf_poses[:, :3, 3])}
+        edges = [(pos_of[int(a)], pos_of[int(b)]) for a, b in run.loop_edges if int(a) in pos_of and int(b) in pos_of]
+        if edges:
+            h.layer("loops", scene.add_line_segments("/loops", np.asarray(edges, np.float32), COLORS["loop"],
+                                                     thickness=4.0, thickness_units="screen"))
+
+
+def _keyframe_sender(scene, run: RunData, config: SceneConfig, h: SceneHandles) -> Callable[[], None]:
+    """Stage 2: every keyframe's wireframe (one segment set) and some thumbnail frustums."""
+    def send_keyframes() -> None:
+        segs = frustum_segments(run.kf_poses, config.fov_y, config.aspect, config.frustum_scale)
+        h.layer("keyframes", scene.add_line_segments("/keyframes/wireframes", segs.astype(np.float32),
+                                                     COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
+        K = len(run.kf_poses)
+        show = np.unique(np.linspace(0, K - 1, min(K, config.max_image_frustums)).round().astype(int))
+        wxyz = wxyz_from_matrix(run.kf_poses[:, :3, :3])
+        for k in show:
+            path = run.thumbs.get(int(run.kf_ids[k]))
+            img = _thumb(path) if path is not None else None
+            if img is None:
+                continue
+            h.layer(f"kf{int(run.kf_ids[k])}", scene.add_camera_frustum(
+                f"/keyframes/thumbs/{int(run.kf_ids[k])}", fov=config.fov_y, aspect=config.aspect,
+                scale=config.frustum_scale, image=img, wxyz=wxyz[k], position=run.kf_poses[k, :3, 3],
+                color=COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
+    return send_keyframes
+
+
+def _points_sender(scene, run: RunData, config: SceneConfig, h: SceneHandles) -> Callable[[], None]:
+    """Stage 2: the sparse map and the dynamic points of the current window."""
+    def send_points() -> None:
+        if _some(run.map_xyz):
+            colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
+            h.layer("sparse", scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
+                                                    point_size=config.point_size_sparse, point_shading="flat"))
+        if h.dynamic is not None:
+            node = scene.add_point_cloud("/map/sparse_dynamic", h.dynamic.points(), np.array(COLORS["dynamic"], np.uint8),
+                                         point_size=config.point_size_sparse * 1.5, point_shading="flat")
+            h.dynamic.node = node
+            h.layer("dynamic", node)
+    return send_points
+
+
+def _dense_senders(scene, run: RunData, config: SceneConfig, h: SceneHandles, background: bool):
+    """Stage 2 (a preview of at most ``preview_dense_points``) and, for a larger map, stage 3 (all
+    of it, up to ``max_dense_points``). With ``background``, a ``map.ply`` still on disk is read
+    in a thread started now."""
+    loader, load_errors = None, []
+    if background and run.dense_xyz is None:
+        def read_dense() -> None:
+            try:
+                run.load_dense()
+            except Exception as exc:  # reported by the sender, in the dense layer's place
+                load_errors.append(exc)
+
+        loader = threading.Thread(target=read_dense, name="dynslam-view-read-map.ply", daemon=True)
+        loader.start()
+
+    def dense_points(limit: int):
+        if loader is not None:
+            loader.join()
+        if load_errors:
+            raise load_errors[0]
+        run.load_dense()  # no-op when already read
+        xyz, rgb = run.dense_xyz, run.dense_rgb
+        if len(xyz) > limit:
+            idx = np.sort(np.random.default_rng(0).choice(len(xyz), limit, replace=False))
+            xyz, rgb = xyz[idx], (None if rgb is None else rgb[idx])
+        return xyz, rgb
+
+    def send(limit: int) -> None:
+        xyz, rgb = dense_points(limit)
+        colors = rgb if rgb is not None else np.array([150, 150, 150], np.uint8)
+        h.layer("dense", scene.add_point_cloud("/map/dense", xyz.astype(np.float32), colors,
+                                               point_size=config.point_size_dense, point_shape="square",
+                                               point_shading="flat"))
+
+    n = run.dense_count if run.dense_xyz is None else len(run.dense_xyz)
+    full = min(n, config.max_dense_points)
+
+    def send_dense_preview() -> None:
+        send(min(full, config.preview_dense_points))
+
+    def send_dense() -> None:
+        send(full)
+
+    if full <= config.preview_dense_points:
+        return send_dense, None
+    return send_dense_preview, send_dense
+
+
+def _add_playback(server, run: RunData, config: SceneConfig, h: SceneHandles) -> None:
+    """The playback: a frustum at the frame's pose, the newest keyframe's thumbnail, the dynamic
+    window; with GUI, the Frame slider and the Play box."""
+    scene = server.scene
+    if run.trajectory is not None and len(run.trajectory):
+        poses, stamps = run.trajectory.poses, run.trajectory.timestamps
+    elif _some(run.kf_poses):
+        poses = run.kf_poses
+        stamps = np.arange(len(poses), dtype=float)
+    else:
+        return
+    h.frame_poses = poses
+    current = scene.add_camera_frustum("/playback/current", fov=config.fov_y, aspect=config.aspect,
+                                       scale=config.frustum_scale * 1.5, color=COLORS["current"],
+                                       wxyz=wxyz_from_matrix(poses[0, :3, :3]), position=poses[0, :3, 3],
+                                       thickness=3.0, thickness_units="screen")
+    h.nodes["current"] = current
+    kf_stamps = run.kf_timestamps if run.trajectory is not None else None
+    thumb_node: dict[str, object] = {}
+
+    def show_keyframe(i: int) -> None:
+        if run.kf_poses is None or not run.thumbs:
+            return
+        if kf_stamps is not None and np.isfinite(kf_stamps).all():
+            k = int(np.searchsorted(kf_stamps, stamps[i] + 1e-6)) - 1
+        else:
+            k = int(min(i, len(run.kf_poses) - 1))
+        path = run.thumbs.get(int(run.kf_ids[k])) if k >= 0 else None
+        img = _thumb(path) if path is not None else None
+        if img is None:
+            return
+        node = thumb_node.get("h")
+        if node is None:
+            thumb_node["h"] = scene.add_camera_frustum(
+                "/playback/keyframe", fov=config.fov_y, aspect=config.aspect, scale=config.frustum_scale * 1.5,
+                image=img, wxyz=wxyz_from_matrix(run.kf_poses[k, :3, :3]), position=run.kf_poses[k, :3, 3],
+                color=COLORS["keyframe"], thickness=3.0, thickness_units="screen")
+        else:
+            node.image = img
+            node.wxyz = wxyz_from_matrix(run.kf_poses[k, :3, :3])
+            node.position = run.kf_poses[k, :3, 3]
+
+    def on_frame(i: int) -> None:
+        i = int(np.clip(i, 0, len(poses) - 1))
+        current.wxyz = wxyz_from_matrix(poses[i, :3, :3])
+        current.position = poses[i, :3, 3]
+        if h.dynamic is not None:
+            h.dynamic.set_frame(i)
+        show_keyframe(i)
+
+    h.on_frame = on_frame
+    if config.gui:
+        h.slider = server.gui.add_slider("Frame", min=0, max=max(len(poses) - 1, 1), step=1, initial_value=0)
+        h.play = server.gui.add_checkbox("Play", initial_value=False)
+        h.slider.on_update(lambda _event: on_frame(h.slider.value))
+
+
+_LAYER_LABELS = {
+    "estimate": "estimated trajectory",
+    "ground_truth": "ground truth (aligned)",
+    "keyframes": "keyframes",
+    "current": "playback frame",
+    "loops": "loop edges",
+    "sparse": "sparse map (own colours)",
+    "dynamic": "keypoints judged dynamic",
+    "dense": "dense map (own colours)",
+}
+_LAYER_COLOUR = {"keyframes": "keyframe", "current": "current", "loops": "loop", "sparse": "static",
+                 "dense": None, "estimate": "estimate", "ground_truth": "ground_truth", "dynamic": "dynamic"}
+
+
+def _add_controls(server, h: SceneHandles, present: list[str], config: SceneConfig) -> None:
+    """Layer toggles, the all-dynamic-points box, and the legend (colours of this scheme)."""
+    gui = server.gui
+    for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
+        if key in present:
+            cb = gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
+            cb.on_update(lambda _event, key=key, cb=cb: h.set_visible(key, cb.value))
+    if h.dynamic is not None and h.dynamic.pose is not None:
+        every = gui.add_checkbox("Dynamic: all frames", initial_value=False)
+        every.on_update(lambda _event: h.dynamic.set_show_all(every.value))
+    rows = []
+    for key in ("estimate", "ground_truth", "current", "keyframes", "loops", "sparse", "dynamic", "dense"):
+        if key not in present:
+            continue
+        label = _LAYER_LABELS[key]
+        if key == "dynamic" and h.dynamic is not None and h.dynamic.pose is not None:
+            label += f" (frames within {config.dynamic_window} of the playback frame)"
+        colour = _LAYER_COLOUR[key]
+        rows.append((label, hex_color(colour) if colour else "#969696"))
+    h.legend_rows = rows
+    cells = "".join(
+        f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;margin:2px 0">'
+        f'<span style="display:inline-block;width:14px;height:14px;background:{c};border:1px solid #555"></span>'
+        f"{html.escape(label)}</div>" for label, c in rows)
+    with gui.add_folder("Legend", order=0.0):  # first in the panel, above the playback controls
+        h.legend = gui.add_html(f"<div>{cells}</div>")
+
+
+def build_scene(server, run: RunData, config: SceneConfig | None = None) -> SceneHandles:
+    """Add a run's layers (and the playback GUI and legend) to a viser server.
+
+    The trajectories, loop edges, playback frustum, GUI and legend are sent at once. With the GUI
+    on and a delay configured, the keyframes, sparse map, dynamic window and a demo-size dense
+    map follow ``config.defer_layers`` seconds after the first browser connects; a larger dense
+    map comes as a preview ``config.defer_dense`` seconds after them and whole as much later (a
+    ``map.ply`` left on disk by
+    ``load_run(..., dense=False)`` is read in a background thread meanwhile); otherwise
+    (notebook embeds) everything is sent before this returns. :meth:`SceneHandles.add_deferred`
+    sends what is left at any time.
 
     Parameters
     ----------
@@ -454,161 +775,37 @@ def build_scene(server, run: RunData, config: SceneConfig | None = None) -> Scen
         run.load_dense()  # the dense map is all there is: it sets the view
     scene.set_up_direction(tuple(_up_direction(run)))
     eye, target, up = initial_view(run)
+    server.initial_camera.fov = VIEWER_FOV_Y
     server.initial_camera.position = tuple(eye)
     server.initial_camera.look_at = tuple(target)
     server.initial_camera.up = tuple(up)
     streaming = config.gui and (config.defer_layers > 0 or config.defer_dense > 0)
+    if _some(run.dynamic_xyz):
+        h.dynamic = DynamicWindow(run.dynamic_xyz, dynamic_pose_index(run), config.dynamic_window)
 
-    def some(a) -> bool:
-        return a is not None and len(a) > 0
-
-    later = {  # the layers of the later stages that this run has
-        "keyframes": some(run.kf_poses),
-        "sparse": some(run.map_xyz),
-        "dynamic": some(run.dynamic_xyz),
-        "dense": (some(run.dense_xyz) or run.dense_count > 0) and config.max_dense_points > 0,
-    }
-
-    # ---- stage 1: the trajectories and loop edges (small, and what the first picture shows)
-    for key, traj in (("ground_truth", run.ground_truth), ("estimate", run.trajectory)):
-        if traj is not None and len(traj) >= 2:
-            h.layer(key, scene.add_line_segments(
-                f"/trajectory/{key}", polyline_segments(traj.positions, config.max_path_points).astype(np.float32),
-                COLORS[key], thickness=config.trajectory_thickness, thickness_units="screen"))
-    if run.kf_poses is not None and run.loop_edges is not None and len(run.loop_edges):
-        pos_of = {int(i): p for i, p in zip(run.kf_ids, run.kf_poses[:, :3, 3])}
-        edges = [(pos_of[int(a)], pos_of[int(b)]) for a, b in run.loop_edges if int(a) in pos_of and int(b) in pos_of]
-        if edges:
-            h.layer("loops", scene.add_line_segments("/loops", np.asarray(edges, np.float32), COLORS["loop"],
-                                                     thickness=4.0, thickness_units="screen"))
-
-    # ---- stage 2: keyframes and the sparse map
-    def send_keyframes() -> None:
-        segs = frustum_segments(run.kf_poses, config.fov_y, config.aspect, config.frustum_scale)
-        h.layer("keyframes", scene.add_line_segments("/keyframes/wireframes", segs.astype(np.float32),
-                                                     COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
-        K = len(run.kf_poses)
-        show = np.unique(np.linspace(0, K - 1, min(K, config.max_image_frustums)).round().astype(int))
-        wxyz = wxyz_from_matrix(run.kf_poses[:, :3, :3])
-        for k in show:
-            path = run.thumbs.get(int(run.kf_ids[k]))
-            img = _thumb(path) if path is not None else None
-            if img is None:
-                continue
-            h.layer(f"kf{int(run.kf_ids[k])}", scene.add_camera_frustum(
-                f"/keyframes/thumbs/{int(run.kf_ids[k])}", fov=config.fov_y, aspect=config.aspect,
-                scale=config.frustum_scale, image=img, wxyz=wxyz[k], position=run.kf_poses[k, :3, 3],
-                color=COLORS["keyframe"], thickness=1.5, thickness_units="screen"))
-
-    def send_sparse() -> None:
-        if later["sparse"]:
-            colors = run.map_rgb if run.map_rgb is not None else np.array(COLORS["static"], np.uint8)
-            h.layer("sparse", scene.add_point_cloud("/map/sparse_static", run.map_xyz.astype(np.float32), colors,
-                                                    point_size=config.point_size_sparse, point_shading="flat"))
-        if later["dynamic"]:
-            h.layer("dynamic", scene.add_point_cloud("/map/sparse_dynamic", run.dynamic_xyz.astype(np.float32),
-                                                     np.array(COLORS["dynamic"], np.uint8),
-                                                     point_size=config.point_size_sparse, point_shading="flat"))
-
-    stage2 = []
-    if later["keyframes"]:
-        stage2.append(send_keyframes)
-    if later["sparse"] or later["dynamic"]:
-        stage2.append(send_sparse)
-
-    # ---- stage 3: the dense map (read in the background if it is still on disk)
-    loader, load_errors = None, []
-    if later["dense"] and streaming and run.dense_xyz is None:
-        def read_dense() -> None:
-            try:
-                run.load_dense()
-            except Exception as exc:  # reported by send_dense, in the dense layer's place
-                load_errors.append(exc)
-
-        loader = threading.Thread(target=read_dense, name="dynslam-view-read-map.ply", daemon=True)
-        loader.start()
-
-    def send_dense() -> None:
-        if loader is not None:
-            loader.join()
-        if load_errors:
-            raise load_errors[0]
-        run.load_dense()  # no-op when already read
-        xyz, rgb = run.dense_xyz, run.dense_rgb
-        if len(xyz) > config.max_dense_points:
-            idx = np.sort(np.random.default_rng(0).choice(len(xyz), config.max_dense_points, replace=False))
-            xyz, rgb = xyz[idx], (None if rgb is None else rgb[idx])
-        colors = rgb if rgb is not None else np.array([150, 150, 150], np.uint8)
-        h.layer("dense", scene.add_point_cloud("/map/dense", xyz.astype(np.float32), colors,
-                                               point_size=config.point_size_dense, point_shape="square",
-                                               point_shading="flat"))
-
-    if stage2:
-        h.deferred.append((config.defer_layers, stage2))
-    if later["dense"]:
-        h.deferred.append((config.defer_dense, [send_dense]))
-
-    # ---- playback: the frames of the trajectory (or the keyframes when there is none)
-    if run.trajectory is not None and len(run.trajectory):
-        poses, stamps = run.trajectory.poses, run.trajectory.timestamps
-    elif later["keyframes"]:
-        poses = run.kf_poses
-        stamps = np.arange(len(poses), dtype=float)
-    else:
-        poses, stamps = None, None
-    h.frame_poses = poses
-    if poses is not None:
-        current = scene.add_camera_frustum("/playback/current", fov=config.fov_y, aspect=config.aspect,
-                                           scale=config.frustum_scale * 1.5, color=COLORS["current"],
-                                           wxyz=wxyz_from_matrix(poses[0, :3, :3]), position=poses[0, :3, 3],
-                                           thickness=3.0, thickness_units="screen")
-        h.nodes["current"] = current
-        kf_stamps = run.kf_timestamps if run.trajectory is not None else None
-        thumb_node: dict[str, object] = {}
-
-        def on_frame(i: int) -> None:
-            i = int(np.clip(i, 0, len(poses) - 1))
-            current.wxyz = wxyz_from_matrix(poses[i, :3, :3])
-            current.position = poses[i, :3, 3]
-            if run.kf_poses is None or not run.thumbs:
-                return
-            if kf_stamps is not None and np.isfinite(kf_stamps).all():
-                k = int(np.searchsorted(kf_stamps, stamps[i] + 1e-6)) - 1
-            else:
-                k = int(min(i, len(run.kf_poses) - 1))
-            if k < 0:
-                return
-            path = run.thumbs.get(int(run.kf_ids[k]))
-            img = _thumb(path) if path is not None else None
-            if img is None:
-                return
-            node = thumb_node.get("h")
-            if node is None:
-                thumb_node["h"] = scene.add_camera_frustum(
-                    "/playback/keyframe", fov=config.fov_y, aspect=config.aspect, scale=config.frustum_scale * 1.5,
-                    image=img, wxyz=wxyz_from_matrix(run.kf_poses[k, :3, :3]), position=run.kf_poses[k, :3, 3],
-                    color=COLORS["keyframe"], thickness=3.0, thickness_units="screen")
-            else:
-                node.image = img
-                node.wxyz = wxyz_from_matrix(run.kf_poses[k, :3, :3])
-                node.position = run.kf_poses[k, :3, 3]
-
-        h.on_frame = on_frame
-        if config.gui:
-            gui = server.gui
-            h.slider = gui.add_slider("Frame", min=0, max=max(len(poses) - 1, 1), step=1, initial_value=0)
-            h.play = gui.add_checkbox("Play", initial_value=False)
-
-            @h.slider.on_update
-            def _(_event) -> None:
-                on_frame(h.slider.value)
-
+    _add_paths(scene, run, config, h)
+    stage2, stage3 = [], []  # (stage4: below)
+    if _some(run.kf_poses):
+        stage2.append(_keyframe_sender(scene, run, config, h))
+    if _some(run.map_xyz) or h.dynamic is not None:
+        stage2.append(_points_sender(scene, run, config, h))
+    stage4 = []
+    has_dense = (_some(run.dense_xyz) or run.dense_count > 0) and config.max_dense_points > 0
+    if has_dense:
+        preview, full = _dense_senders(scene, run, config, h, background=streaming)
+        if full is None:  # a demo-size map: with the keyframes
+            stage2.append(preview)
+        else:  # a large one: a preview after the keyframes, then all of it
+            stage3.append(preview)
+            stage4.append(full)
+    for delay, sends in ((config.defer_layers, stage2), (config.defer_dense, stage3), (config.defer_dense, stage4)):
+        if sends:
+            h.deferred.append((delay, sends))
+    _add_playback(server, run, config, h)
     if config.gui:
-        present = set(h.nodes) | {key for key, there in later.items() if there}
-        for key in ("dense", "sparse", "dynamic", "ground_truth", "estimate", "keyframes", "loops"):
-            if key in present:
-                cb = server.gui.add_checkbox(f"Show {key.replace('_', ' ')}", initial_value=True)
-                cb.on_update(lambda _event, key=key, cb=cb: h.set_visible(key, cb.value))
+        later = {"keyframes": _some(run.kf_poses), "sparse": _some(run.map_xyz), "dynamic": h.dynamic is not None,
+                 "dense": has_dense}
+        _add_controls(server, h, list(h.nodes) + [k for k, there in later.items() if there], config)
 
     h.build_seconds = time.perf_counter() - t0
     h.stage_seconds.append(h.build_seconds)
@@ -631,17 +828,31 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def open_server(host: str = "127.0.0.1", port: int | None = None, verbose: bool = False, extra_hosts=(), log=None):
+    """A started ``viser.ViserServer`` that answers only its own page (:mod:`dynslam_lab.viz.access`).
+
+    Parameters
+    ----------
+    host, port : where to listen (port None: a free one).
+    extra_hosts : more ``Host`` names to accept (when listening on a network address on purpose).
+    log : called with a line for every refused request.
+    """
+    import viser  # optional heavy dependency (only the viewer needs it)
+
+    server = viser.ViserServer(host=host, port=port if port is not None else free_port(host), verbose=verbose)
+    guard_viser_server(server, extra_hosts=extra_hosts, log=log)
+    return server
+
+
 def start_viewer(run: RunData | str | Path, port: int | None = None, host: str = "127.0.0.1",
-                 config: SceneConfig | None = None, verbose: bool = False):
-    """Start a viser server on ``host:port`` and build the run's scene in it.
+                 config: SceneConfig | None = None, verbose: bool = False, extra_hosts=(), log=None):
+    """Start a guarded viser server on ``host:port`` and build the run's scene in it.
 
     Returns ``(server, handles)``; stop with ``handles.close()`` and ``server.stop()``.
     """
-    import viser
-
     if not isinstance(run, RunData):
         run = load_run(run, dense=False)  # a large map.ply is read while the first layers are on screen
-    server = viser.ViserServer(host=host, port=port if port is not None else free_port(host), verbose=verbose)
+    server = open_server(host, port, verbose, extra_hosts, log)
     handles = build_scene(server, run, config)
     return server, handles
 
@@ -658,11 +869,14 @@ def show_inline(run: RunData | str | Path, height: int = 500, config: SceneConfi
     """Build the run's scene and embed it in a notebook cell (a static snapshot, no GUI).
 
     Uses viser's ``server.scene.show()``, which serialises the scene into the notebook's
-    HTML; ipywidgets (not viser's GUI) own the parameters in notebooks. Returns the server
-    (stopped: the embedded page needs no live connection).
+    HTML; ipywidgets (not viser's GUI) own the parameters in notebooks. Without GUI there is no
+    playback, so every dynamic point is shown. Returns the server (stopped: the embedded page
+    needs no live connection).
     """
     config = dataclasses.replace(config or SceneConfig(), gui=False)
     server, handles = start_viewer(run, config=config)
+    if handles.dynamic is not None:
+        handles.dynamic.set_show_all(True)
     server.scene.show(height=height)
     server.stop()
     return server

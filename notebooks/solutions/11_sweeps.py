@@ -1,28 +1,15 @@
-"""Solutions of the exercises of notebooks/11_sweeps.py."""
+# %% [markdown]
+# # Solutions of notebook 11 · Parameter sweeps
 
-from __future__ import annotations
+# %% exercise="11.1"
+answer = np.geomspace(0.25, 4.0, 5).tolist()  # start * (stop / start) ** (i / (num - 1))
 
-import numpy as np
+# %% exercise="11.2"
+sums = table.groupby(["sequence", THR])[["keypoints.tp", "keypoints.fp"]].sum()
+flagged = sums["keypoints.tp"] + sums["keypoints.fp"]
+answer = sums["keypoints.tp"] / flagged.where(flagged > 0)
 
-THR = "screening.epipolar.threshold_px"
-
-
-def log_range(start, stop, num):
-    """Exercise 1: ``num`` values evenly spaced in log from ``start`` to ``stop`` (both included):
-    ``start * (stop / start) ** (i / (num - 1))``, which is ``numpy.geomspace``."""
-    return np.geomspace(start, stop, num).tolist()
-
-
-def pooled_precision(table):
-    """Exercise 2: TP and FP summed over the seeds, then TP / (TP + FP), per sequence and threshold
-    (NaN where nothing was flagged)."""
-    counts = table.groupby(["sequence", THR])[["keypoints.tp", "keypoints.fp"]].sum()
-    flagged = counts["keypoints.tp"] + counts["keypoints.fp"]
-    return counts["keypoints.tp"] / flagged.where(flagged > 0)
-
-
-def predict_extension():
-    """Exercise 3: walking_xyz gets 3 seeds, walking_static keeps 2, and 4 values of the threshold:
-    (3 + 2) x 4 = 20 runs. The runs of the first spec (2 + 2 seeds x 3 values = 12) keep their names,
-    since nothing that decides them changed, so they are finished."""
-    return (3 + 2) * 4, (2 + 2) * 3
+# %% exercise="11.3"
+# walking_xyz gets 3 seeds, walking_static keeps 2, and 4 values of the threshold: (3 + 2) x 4 = 20 runs.
+# The 12 runs of the first spec keep their names (nothing that decides them changed): they are finished.
+answer = ((3 + 2) * 4, (2 + 2) * 3)

@@ -10,7 +10,11 @@ import pytest
 from dynslam_lab.geometry.se3 import make_pose, so3_exp
 from tests.fixtures.demo_run import write_demo_run
 from dynslam_lab.viz.viser_scene import (
+    COLORS,
+    VIEWER_FOV_Y,
     SceneConfig,
+    dynamic_pose_index,
+    initial_view,
     build_scene,
     free_port,
     frustum_segments,
@@ -110,7 +114,7 @@ def test_layers_stream_in_stages(demo):
     them: tests/viz/test_view_browser.py checks that with a real browser)."""
     import time
 
-    cfg = SceneConfig(max_image_frustums=3, defer_layers=0.4, defer_dense=0.4)
+    cfg = SceneConfig(max_image_frustums=3, defer_layers=0.4, defer_dense=0.4, preview_dense_points=1000)
     server, h = start_viewer(demo, config=cfg)
     try:
         first = {"estimate", "ground_truth", "loops", "current"}
@@ -125,10 +129,15 @@ def test_layers_stream_in_stages(demo):
             time.sleep(0.02)
         t_kf = time.monotonic() - t0
         assert "keyframes" in h.nodes and "sparse" in h.nodes and "dynamic" in h.nodes and "dense" not in h.nodes
+        # a map larger than the preview: a seeded subset in the next stage, all of it in the one after
+        while len(h.stage_seconds) < 3 and time.monotonic() - t0 < 10:
+            time.sleep(0.02)
+        t_preview = time.monotonic() - t0
+        assert np.asarray(h.nodes["dense"].points).shape == (1000, 3)
         assert h.wait_complete(10)
         t_dense = time.monotonic() - t0
-        assert 0.3 < t_kf < 5 and t_dense - t_kf > 0.3, (t_kf, t_dense)
-        assert h.errors == [] and len(h.stage_seconds) == 3
+        assert 0.3 < t_kf < 5 and t_preview - t_kf > 0.3 and t_dense - t_preview > 0.3, (t_kf, t_preview, t_dense)
+        assert h.errors == [] and len(h.stage_seconds) == 4
         assert np.asarray(h.nodes["dense"].points).shape == (5000, 3)
     finally:
         h.close()
@@ -222,3 +231,82 @@ def test_view_command_serves_and_stops(demo, capsys):
     out = capsys.readouterr().out
     assert "120 poses, 12 keyframes, 500 map points, 5000 dense points" in out
     assert "open http://127.0.0.1:" in out
+
+
+def test_a_demo_size_dense_map_comes_with_the_keyframes(demo):
+    """At most preview_dense_points: the whole dense map is in the second stage (seconds after
+    the browser connects), and there is no third stage."""
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0, defer_layers=0.2, defer_dense=5.0))
+    try:
+        h.start_stream()
+        assert h.wait_complete(10), "no third stage to wait for"
+        assert len(h.stage_seconds) == 2
+        assert np.asarray(h.nodes["dense"].points).shape == (5000, 3)
+    finally:
+        h.close()
+        server.stop()
+
+
+def test_dynamic_points_follow_the_playback(demo):
+    """Only the dynamic points of frames within dynamic_window of the playback frame are drawn
+    (every frame of the demo run is tracked: frame index = pose index); all on demand."""
+    import numpy.testing as npt
+
+    with np.load(demo / "dynamic_points.npz") as z:
+        xyz, frame = z["xyz"], z["frame"]
+    run = load_run(demo)
+    np.testing.assert_array_equal(dynamic_pose_index(run), frame)
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0, dynamic_window=5))
+    try:
+        h.add_deferred()
+        for i in (0, 57, 119):
+            h.set_frame(i)
+            shown = np.asarray(h.nodes["dynamic"].points, np.float64)
+            want = xyz[np.abs(frame - i) <= 5]
+            assert len(shown) == len(want) and len(want) < len(xyz)
+            npt.assert_allclose(np.sort(shown, axis=0), np.sort(want, axis=0), atol=2e-3)  # viser keeps float16
+        h.dynamic.set_show_all(True)
+        assert len(np.asarray(h.nodes["dynamic"].points)) == len(xyz)
+    finally:
+        server.stop()
+
+
+def test_legend_names_every_layer_in_the_shared_colours(demo):
+    from dynslam_lab.viz.colors import hex_color
+
+    server, h = start_viewer(demo, config=SceneConfig(max_image_frustums=0))
+    try:
+        rows = dict(h.legend_rows)
+        assert rows["estimated trajectory"] == hex_color(COLORS["estimate"])
+        assert rows["ground truth (aligned)"] == hex_color(COLORS["ground_truth"])
+        assert rows["keyframes"] == hex_color(COLORS["keyframe"])
+        assert any(k.startswith("keypoints judged dynamic") and v == hex_color(COLORS["dynamic"]) for k, v in rows.items())
+        assert "dense map (own colours)" in rows and "loop edges" in rows
+        assert hex_color(COLORS["estimate"]) in h.legend.content
+    finally:
+        server.stop()
+
+
+def test_initial_view_frames_the_path_and_its_surroundings(demo):
+    """Projected with viser's 75 degree camera into a 4:3 window, the whole path is inside and
+    large (not a dot in an empty page), and the maps around it fill the picture."""
+    run = load_run(demo)
+    eye, target, up = initial_view(run)
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    f = 0.5 / np.tan(VIEWER_FOV_Y / 2)  # image height 1, width 4/3
+
+    def project(P):
+        X = (P - eye) @ np.stack([right, down, fwd]).T
+        ok = X[:, 2] > 0
+        return np.stack([f * X[:, 0] / X[:, 2], f * X[:, 1] / X[:, 2]], axis=1), ok
+
+    path, ok = project(run.trajectory.positions)
+    assert ok.all() and (np.abs(path[:, 0]) <= 2 / 3).all() and (np.abs(path[:, 1]) <= 0.5).all(), "path cut off"
+    assert np.ptp(path[:, 0]) > 0.2, "the path is a dot in the middle of the page"
+    uv, ok = project(np.concatenate([run.map_xyz, run.dense_xyz]))
+    inside = ok & (np.abs(uv[:, 0]) <= 2 / 3) & (np.abs(uv[:, 1]) <= 0.5)
+    cells = {(int(3 * (u + 2 / 3) / (4 / 3)), int(3 * (v + 0.5))) for u, v in uv[inside]}
+    assert len(cells) >= 8, f"the maps fill only {len(cells)} of the picture's 9 thirds-by-thirds cells"
