@@ -43,6 +43,7 @@ __all__ = [
     "estimate_fundamental",
     "epipolar_check",
     "pair_inputs",
+    "fundamental_from_pose",
 ]
 
 
@@ -178,6 +179,18 @@ def estimate_fundamental(p_prev: np.ndarray, p_cur: np.ndarray, config: Epipolar
     return F, mask.reshape(-1).astype(bool)
 
 
+def fundamental_from_pose(T_c_p: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """``F = K^-T [t]_x R K^-1`` of a known motion ``T_c_p`` (previous camera -> current camera),
+    with ``p_cur^T F p_prev = 0`` (Zhang et al. 2023 eq. 15); None when ``t`` is (nearly) zero: a
+    pure rotation has no epipolar geometry."""
+    R, t = np.asarray(T_c_p[:3, :3], float), np.asarray(T_c_p[:3, 3], float)
+    if np.linalg.norm(t) < 1e-4:
+        return None
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    Kinv = np.linalg.inv(np.asarray(K, float))
+    return Kinv.T @ tx @ R @ Kinv
+
+
 def epipolar_check(
     uv: np.ndarray,
     uv_prev: np.ndarray,
@@ -185,6 +198,7 @@ def epipolar_check(
     exclude: np.ndarray | None,
     image_size: tuple[int, int],
     config: EpipolarConfig = EpipolarConfig(),
+    F: np.ndarray | None = None,
 ) -> EpipolarResult:
     """Steps 2-4: F from the pairs outside ``exclude`` and the border, then eq. 17 for all pairs.
 
@@ -194,6 +208,8 @@ def epipolar_check(
     matched : ``(N,)`` bool valid pairs (from :func:`track_lk`).
     exclude : ``(N,)`` bool pairs on potentially moving objects (left out of F), or None.
     image_size : ``(H, W)``.
+    F : a fundamental matrix known from the camera motion (:func:`fundamental_from_pose` of the
+        reference pose); None estimates it from the pairs by RANSAC (the papers' way).
     """
     uv, uv_prev, matched, exclude = pair_inputs("epipolar_check", uv, uv_prev, matched, exclude)
     n = len(uv)
@@ -202,7 +218,10 @@ def epipolar_check(
     away = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
     used = matched & ~exclude & away
     distance = np.full(n, np.nan)
-    F, _ = estimate_fundamental(uv_prev[used], uv[used], config)
+    if F is None:
+        F, _ = estimate_fundamental(uv_prev[used], uv[used], config)
+    else:
+        used = np.zeros(n, bool)  # no pair was needed to estimate F
     if F is None:
         return EpipolarResult(None, distance, np.zeros(n, bool), used)
     distance[matched] = epipolar_distance(F, uv_prev[matched], uv[matched])

@@ -30,7 +30,7 @@ def _run(name, frames, config=None):
 def test_filter_names_and_errors():
     assert build_screener("none") is None
     assert isinstance(build_screener("oracle"), OracleScreener)
-    assert parse_filters("geometry") == ("epipolar", "multiview")
+    assert parse_filters("geometry") == ("epipolar", "multiview", "multiframe", "temporal", "regions")
     assert parse_filters("flow, semantic") == ("semantic", "flow")  # run order
     assert "restoration" in parse_filters("full")
     with pytest.raises(ValueError, match="--filters 'yolo'"):

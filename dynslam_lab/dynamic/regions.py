@@ -1,0 +1,135 @@
+"""From dynamic keypoints to dynamic regions: a moving object is removed as a whole.
+
+Every geometric test judges points: a keypoint (epipolar, multi-view), a pixel (the free-space
+test of :mod:`.multiframe`). A moving object also has parts no test can judge: low-texture
+patches without keypoints, surfaces that moved within themselves (a flat box face sliding
+sideways keeps its depth), parts hidden in the earlier frames. DynaSLAM (Bescos et al. 2018,
+Sec. III-C) grows its dynamic keypoints into regions "in the depth image" around them; Chang et
+al. 2021 (Sec. III-C) join the flow regions that touch a person mask. We grow regions from the
+evidence over the depth image on the reduced grid of the dense tests (our construction):
+
+* **seeds**: cells with fresh evidence (a free-space violation in any earlier frame, a dynamic
+  keypoint of a geometric test);
+* **growth**: up to ``steps`` cells (4-neighbour steps), only between neighbours whose depths differ
+  by less than ``continuity_rel`` of the depth (a depth edge stops it), and never into a cell
+  that the multi-frame test confirms static (no earlier frame saw through it or lost it, at least
+  ``static_min_agree`` agree, and no more saw it hidden than agree), unless the cell carries the
+  temporal prior (the previous frame's region, :mod:`.temporal`): a slow mover whose cells look
+  static in this frame stays dynamic while some fresh evidence on it remains;
+* **support**: a part of the grown region, joined across continuous depth only, is kept when it
+  holds at least ``min_fresh_cells`` cells of fresh evidence, so a lone noisy cell grows nothing and
+  the prior fades as soon as the fresh evidence does (a mover that stopped).
+
+The result is an ``(h, w)`` bool grid of dynamic cells; keypoints inside it are dynamic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["RegionConfig", "depth_continuity", "grow_regions", "continuity_components", "supported_regions", "cells_at", "splat"]
+
+
+@dataclass(frozen=True)
+class RegionConfig:
+    """Parameters of region growing on the reduced grid (ours, after DynaSLAM's region growing, Bescos et al. 2018)."""
+
+    steps: int = 8  # growth steps from the seeds (cells; 8 x 4 px = 32 px at factor 4); ours
+    continuity_rel: float = 0.04  # neighbours join when |z_a - z_b| < continuity_rel * min(z_a, z_b); ours
+    static_min_agree: int = 2  # a cell is confirmed static when this many earlier frames (and all tested) agree; ours
+    min_fresh_cells: int = 3  # a region needs this many cells of fresh evidence; ours
+    seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
+
+    def __post_init__(self) -> None:
+        if self.steps < 0 or self.min_fresh_cells < 1 or self.static_min_agree < 1:
+            raise ValueError("RegionConfig: steps >= 0, min_fresh_cells >= 1 and static_min_agree >= 1 required")
+        if not 0 < self.continuity_rel < 1:
+            raise ValueError(f"RegionConfig.continuity_rel must be in (0, 1), got {self.continuity_rel}")
+
+
+def depth_continuity(depth: np.ndarray, rel: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(h, w - 1)`` and ``(h - 1, w)`` bool: horizontal and vertical neighbours on one surface
+    (both with depth, ``|z_a - z_b| < rel * min(z_a, z_b)``)."""
+    z = np.asarray(depth, np.float32)
+    a, b = z[:, 1:], z[:, :-1]
+    horiz = (a > 0) & (b > 0) & (np.abs(a - b) < rel * np.minimum(a, b))
+    a, b = z[1:], z[:-1]
+    vert = (a > 0) & (b > 0) & (np.abs(a - b) < rel * np.minimum(a, b))
+    return horiz, vert
+
+
+def grow_regions(seeds: np.ndarray, allowed: np.ndarray, continuity: tuple[np.ndarray, np.ndarray], steps: int) -> np.ndarray:
+    """Geodesic growth of ``seeds (h, w)`` through ``allowed`` cells over continuous neighbours, ``steps`` times."""
+    horiz, vert = continuity
+    grown = np.asarray(seeds, bool).copy()
+    allowed = np.asarray(allowed, bool)
+    for _ in range(int(steps)):
+        new = np.zeros_like(grown)
+        new[:, 1:] |= grown[:, :-1] & horiz
+        new[:, :-1] |= grown[:, 1:] & horiz
+        new[1:] |= grown[:-1] & vert
+        new[:-1] |= grown[1:] & vert
+        new &= allowed & ~grown
+        if not new.any():
+            break
+        grown |= new
+    return grown
+
+
+def continuity_components(mask: np.ndarray, continuity: tuple[np.ndarray, np.ndarray]) -> tuple[int, np.ndarray]:
+    """Connected parts of ``mask (h, w)`` whose neighbours join only across continuous depth.
+
+    The cells and the joining edges are laid on a grid twice as fine (cell ``(i, j)`` at ``(2i, 2j)``,
+    the edge to its right at ``(2i, 2j + 1)``, the one below at ``(2i + 1, 2j)``), so that one
+    ``cv2.connectedComponents`` call (4-connected) labels them. Returns ``(n labels, (h, w) int32)``,
+    0 outside ``mask``.
+    """
+    horiz, vert = continuity
+    m = np.asarray(mask, bool)
+    h, w = m.shape
+    fine = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
+    fine[::2, ::2] = m
+    fine[::2, 1::2] = m[:, 1:] & m[:, :-1] & horiz
+    fine[1::2, ::2] = m[1:] & m[:-1] & vert
+    n, labels = cv2.connectedComponents(fine, connectivity=4)
+    return n, labels[::2, ::2]
+
+
+def supported_regions(region: np.ndarray, fresh: np.ndarray, min_fresh: int,
+                      continuity: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The parts of ``region`` (joined across continuous depth only) that hold at least ``min_fresh``
+    cells of ``fresh``."""
+    region = np.asarray(region, bool)
+    if not region.any():
+        return region
+    n, labels = continuity_components(region, continuity)
+    support = np.bincount(labels[np.asarray(fresh, bool) & region], minlength=n)
+    keep = support >= min_fresh
+    keep[0] = False
+    return keep[labels]
+
+
+def cells_at(uv: np.ndarray, factor: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell ``(row, col)`` of the reduced grid of shape ``(h, w)`` holding each pixel ``uv (N, 2)``,
+    and ``inside (N,)``."""
+    h, w = shape
+    uv = np.asarray(uv, np.float64)
+    finite = np.isfinite(uv).all(axis=1)
+    safe = np.where(finite[:, None], uv, -1.0)
+    c = np.floor((safe[:, 0] + 0.5) / factor).astype(np.int64)
+    r = np.floor((safe[:, 1] + 0.5) / factor).astype(np.int64)
+    inside = finite & (c >= 0) & (c < w) & (r >= 0) & (r < h)
+    return np.clip(r, 0, h - 1), np.clip(c, 0, w - 1), inside
+
+
+def splat(uv: np.ndarray, flags: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """``(h, w)`` bool: the cells holding at least one keypoint ``uv`` with ``flags`` set."""
+    out = np.zeros(shape, bool)
+    flags = np.asarray(flags, bool)
+    if flags.any():
+        r, c, inside = cells_at(np.asarray(uv)[flags], factor, shape)
+        out[r[inside], c[inside]] = True
+    return out
