@@ -105,33 +105,40 @@ def eroded_depth(depth: np.ndarray, radius: int) -> np.ndarray:
 
 
 def grid_points(depth: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points ``(h*w, 3)`` of every pixel of a depth grid (``camera`` of that grid) and the
-    flat indices ``(h*w,)`` of the pixels with depth (the rows to keep)."""
+    """Camera points ``(K, 3)`` float32 of the pixels of a depth grid that have depth (``camera`` of
+    that grid), and their flat indices ``(K,)`` in the grid."""
     h, w = depth.shape
-    z = depth.reshape(-1).astype(np.float64)
-    v, u = np.divmod(np.arange(h * w), w)
-    P = np.empty((h * w, 3))
-    P[:, 0] = (u - camera.cx) / camera.fx * z
-    P[:, 1] = (v - camera.cy) / camera.fy * z
-    P[:, 2] = z
-    return P, np.flatnonzero(z > 0)
+    z = depth.reshape(-1)
+    keep = np.flatnonzero(z > 0)
+    v, u = np.divmod(keep, w)
+    zk = z[keep].astype(np.float32)
+    P = np.empty((len(keep), 3), np.float32)
+    P[:, 0] = (u.astype(np.float32) - camera.cx) * (zk / camera.fx)
+    P[:, 1] = (v.astype(np.float32) - camera.cy) * (zk / camera.fy)
+    P[:, 2] = zk
+    return P, keep
 
 
-def _project_lookup(P_c: np.ndarray, camera, image: np.ndarray, border: float):
-    """Project camera points, look ``image`` up at the nearest pixel; ``(z_p, value, inside)``."""
-    h, w = image.shape
-    z = P_c[:, 2]
+def _project(P_c: np.ndarray, camera, shape: tuple[int, int], border: float):
+    """Nearest pixels of camera points ``(..., 3)``: ``(z, flat index, inside)`` (index 0 outside)."""
+    h, w = shape
+    z = P_c[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = camera.fx * P_c[:, 0] / z + camera.cx
-        v = camera.fy * P_c[:, 1] / z + camera.cy
+        inv = 1.0 / z
+        u = camera.fx * P_c[..., 0] * inv + camera.cx
+        v = camera.fy * P_c[..., 1] * inv + camera.cy
     inside = (z > 0.05) & (u >= border) & (v >= border) & (u <= w - 1 - border) & (v <= h - 1 - border)
-    c = np.clip(np.round(np.where(inside, u, 0)).astype(np.int64), 0, w - 1)
-    r = np.clip(np.round(np.where(inside, v, 0)).astype(np.int64), 0, h - 1)
-    return z, image[r, c], inside, r, c
+    c = np.rint(np.where(inside, u, 0)).astype(np.int64)
+    r = np.rint(np.where(inside, v, 0)).astype(np.int64)
+    return z, r * w + c, inside
 
 
-def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig, key: str = "depth_min") -> FreeSpace:
-    """The forward test of world points ``X_w (M, 3)`` against earlier frames.
+def _tau(z: np.ndarray, config: MultiFrameConfig) -> np.ndarray:
+    return np.maximum(config.depth_m, config.depth_quadratic * z * z)
+
+
+def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig) -> FreeSpace:
+    """The forward test of world points ``X_w (M, 3)`` against earlier frames (all frames at once).
 
     Parameters
     ----------
@@ -140,31 +147,26 @@ def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig, key
         ``camera`` the intrinsics of that depth grid.
     camera : intrinsics of the earlier frames' depth images.
     """
-    X_w = np.asarray(X_w, np.float64).reshape(-1, 3)
+    X_w = np.asarray(X_w, np.float32).reshape(-1, 3)
     m = len(X_w)
-    viol = np.zeros(m, np.int64)
-    agree = np.zeros(m, np.int64)
-    occl = np.zeros(m, np.int64)
-    margin = np.full(m, -np.inf)
-    border = config.border_px
-    for T_w_j, depth_j in refs:
-        T = se3_inv(T_w_j)
-        P = X_w @ T[:3, :3].T + T[:3, 3]
-        zp, zj, inside, _, _ = _project_lookup(P, camera, depth_j, border)
-        ok = inside & (zj > 0)
-        tau = np.maximum(config.depth_m, config.depth_quadratic * zp**2)
-        d = np.where(ok, zj - zp, np.nan)
-        with np.errstate(invalid="ignore"):
-            v = d > tau
-            a = np.abs(d) <= tau
-            o = d < -tau
-            margin = np.where(ok, np.fmax(margin, d - tau), margin)
-        viol += v
-        agree += a
-        occl += o
-    tested = viol + agree
-    margin = np.where(np.isfinite(margin), margin, np.nan)
-    return FreeSpace(viol, agree, occl, tested, margin)
+    if not refs or m == 0:
+        z = np.zeros(m, np.int64)
+        return FreeSpace(z, z.copy(), z.copy(), z.copy(), np.full(m, np.nan))
+    T = np.stack([se3_inv(T_w_j) for T_w_j, _ in refs]).astype(np.float32)  # (J, 4, 4) T_j_w
+    h, w = refs[0][1].shape
+    P = np.matmul(X_w[None], T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]  # (J, M, 3)
+    zp, idx, inside = _project(P, camera, (h, w), config.border_px)
+    zj = np.stack([np.asarray(d, np.float32).reshape(-1)[i] for (_, d), i in zip(refs, idx)])  # (J, M)
+    ok = inside & (zj > 0)
+    tau = _tau(zp, config)
+    d = np.where(ok, zj - zp, np.nan)
+    with np.errstate(invalid="ignore"):
+        viol = (d > tau).sum(axis=0)
+        agree = (np.abs(d) <= tau).sum(axis=0)
+        occl = (d < -tau).sum(axis=0)
+        margin = np.where(ok, d - tau, -np.inf).max(axis=0).astype(np.float64)
+    margin[~np.isfinite(margin)] = np.nan
+    return FreeSpace(viol, agree, occl, viol + agree, margin)
 
 
 def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, config: MultiFrameConfig) -> np.ndarray:
@@ -174,22 +176,21 @@ def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, conf
 
     Parameters
     ----------
-    refs : sequence of ``(T_w_j (4, 4), depth_j (h, w))`` earlier frames on the grid of ``camera``.
+    refs : sequence of ``(T_w_j (4, 4), camera points (K_j, 3))`` of the earlier frames (their grid
+        points with depth, :func:`grid_points`).
     T_w_c : the current reference pose (camera -> world).
-    current_min : ``(h, w)`` eroded current depth on the same grid.
+    current_min : ``(h, w)`` eroded current depth on the grid of ``camera``.
     """
     h, w = current_min.shape
-    count = np.zeros(h * w, np.int64)
+    seen = np.zeros((max(len(refs), 1), h * w), bool)
     T_c_w = se3_inv(T_w_c)
-    for T_w_j, depth_j in refs:
-        P, keep = grid_points(depth_j, camera)
-        P = P[keep]
-        T = T_c_w @ T_w_j
+    flat_min = current_min.reshape(-1)
+    for j, (T_w_j, P) in enumerate(refs):
+        T = (T_c_w @ T_w_j).astype(np.float32)
         Q = P @ T[:3, :3].T + T[:3, 3]
-        zp, zc, inside, r, c = _project_lookup(Q, camera, current_min, config.border_px)
-        tau = np.maximum(config.depth_m, config.depth_quadratic * zp**2)
+        zp, idx, inside = _project(Q, camera, (h, w), config.border_px)
+        zc = flat_min[idx]
         with np.errstate(invalid="ignore"):
-            hit = inside & (zc > 0) & (zc - zp > tau)
-        flat = np.unique(r[hit] * w + c[hit])
-        count[flat] += 1
-    return count.reshape(h, w)
+            hit = inside & (zc > 0) & (zc - zp > _tau(zp, config))
+        seen[j, idx[hit]] = True
+    return seen.sum(axis=0).reshape(h, w)

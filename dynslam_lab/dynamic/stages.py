@@ -209,15 +209,21 @@ class FrameWork:
         """The current depth on the reduced grid (:func:`~dynslam_lab.dynamic.history.reduce_depth`)."""
         return self._timed("reduce_depth", lambda: reduce_depth(self.frame.depth, self.config.multiframe.factor))
 
+    def grid_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Camera points of the reduced grid's cells with depth, and their flat indices."""
+        return self._timed("grid_points", lambda: grid_points(self.small_depth, self.grid_camera))
+
     def references(self) -> list[PastFrame]:
         """Earlier frames with a pose at the configured offsets (newest first)."""
         return [f for f in self.memory.history.with_pose(self.config.multiframe.offsets) if f.depth.shape == self.shape]
 
     def past_frame(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> PastFrame:
         """This frame as the memory keeps it for the next ones."""
-        small = self._cache.get("reduce_depth")
-        return PastFrame(self.frame.index, float(self.frame.timestamp), self.gray, self.frame.depth,
-                         small_depth=small, region=region, T_w_c=T_w_c)
+        past = PastFrame(self.frame.index, float(self.frame.timestamp), self.gray, self.frame.depth,
+                         small_depth=self._cache.get("reduce_depth"), region=region, T_w_c=T_w_c)
+        if "grid_points" in self._cache:
+            past.cache["grid_points"] = self._cache["grid_points"][0]
+        return past
 
 
 # ---------------------------------------------------------------------- helpers
@@ -357,10 +363,10 @@ def multiframe_stage(w: FrameWork) -> None:
     # the reduced grid
     cam = w.grid_camera
     small = w.small_depth
-    P, keep = grid_points(small, cam)
+    P, keep = w.grid_points()
     grid_refs = [(f.T_w_c, _cached(f, "small_min", lambda f=f: eroded_depth(_past_small_depth(f, cfg.factor), 1)))
                  for f in refs]
-    g = free_space_test(transform_points(T_w_c, P[keep]), grid_refs, cam, cfg)
+    g = free_space_test(transform_points(T_w_c, P), grid_refs, cam, cfg)
     h, wd = small.shape
     viol = np.zeros(h * wd, np.int64)
     viol[keep] = g.violations
@@ -368,7 +374,9 @@ def multiframe_stage(w: FrameWork) -> None:
     agree[keep] = g.agreements
     occluded = np.full(h * wd, len(refs), np.int64)
     occluded[keep] = g.occlusions
-    van = vanished_test(grid_refs, T_w_c, eroded_depth(small, 1), cam, cfg).reshape(-1)
+    pts_refs = [(f.T_w_c, _cached(f, "grid_points", lambda f=f: grid_points(_past_small_depth(f, cfg.factor), cam)[0]))
+                for f in refs]
+    van = vanished_test(pts_refs, T_w_c, eroded_depth(small, 1), cam, cfg).reshape(-1)
     need = min(w.config.regions.static_min_agree, len(refs))  # one earlier frame: its agreement must do
     static = (viol == 0) & (van == 0) & (agree >= need) & (agree >= occluded)
     w.static_cells = static.reshape(h, wd)

@@ -68,7 +68,7 @@ def warp_region(prev_region: np.ndarray, T_p_c: np.ndarray, depth: np.ndarray, c
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate_cells + 1, 2 * dilate_cells + 1))
         region = cv2.dilate(region.astype(np.uint8), k).astype(bool)
     P, keep = grid_points(depth, camera)
-    Q = P[keep] @ T_p_c[:3, :3].T + T_p_c[:3, 3]
+    Q = P @ T_p_c[:3, :3].T + T_p_c[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.round(camera.fx * Q[:, 0] / Q[:, 2] + camera.cx)
         v = np.round(camera.fy * Q[:, 1] / Q[:, 2] + camera.cy)
