@@ -48,7 +48,10 @@ __all__ = [
     "fuse_with_neighbours",
     "cull_recent_points",
     "run_local_ba",
+    "local_ba_window",
+    "LocalBAWindow",
     "bundle_adjust_map",
+    "apply_ba_result",
     "cull_keyframes",
 ]
 
@@ -65,11 +68,21 @@ class LocalMappingConfig:
     recent_age: int = 3  # keyframes a point stays "recent"; ORB-SLAM2: 3
     ba_window: int = 7  # keyframes optimised by local BA (current + best covisible); ours (ORB-SLAM2: all covisible)
     ba_max_fixed: int = 10  # fixed keyframes at most in local BA; ours (ORB-SLAM2: all)
-    ba_iterations: int = 5  # least_squares evaluations per local BA round (2 rounds); ORB-SLAM2: 5 + 10
+    ba_iterations: int = 5  # Levenberg-Marquardt iterations per local BA round at most (2 rounds); ORB-SLAM2: 5 + 10
     ba_every: int = 1  # run local BA every this many keyframes; ours (1 = every keyframe)
+    capped_ba_window: int = 3  # local BA window during a bad stretch of tracking (keyframe flood); ours
+    capped_ba_iterations: int = 2  # local BA iterations per round during a bad stretch; ours
     kf_cull: bool = True  # remove redundant keyframes; ORB-SLAM2: on
     kf_cull_redundant: float = 0.9  # fraction of points seen elsewhere that makes a keyframe redundant; ORB-SLAM2: 0.9
     kf_cull_min_obs: int = 3  # other keyframes that must see a point; ORB-SLAM2: 3
+
+    def __post_init__(self) -> None:
+        for name in ("ba_window", "ba_iterations", "ba_every", "capped_ba_window", "capped_ba_iterations",
+                     "fuse_neighbours", "recent_age"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"LocalMappingConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.ba_max_fixed < 0:
+            raise ValueError(f"LocalMappingConfig.ba_max_fixed must be >= 0, got {self.ba_max_fixed}")
 
 
 def create_points_from_depth(
@@ -223,43 +236,77 @@ def bundle_adjust_map(mp: Map, kfs: dict[int, KeyFrame], fixed: set[int], pts: n
     """
     obs = gather_observations(kfs, o_kf, o_kp, bf, scale_factor)
     res = local_bundle_adjustment({k: f.T_c_w for k, f in kfs.items()}, fixed, mp.xyz[pts], o_kf,
-                                  np.searchsorted(pts, o_pt), obs, camera, bf, max_nfev=iterations)
+                                  np.searchsorted(pts, o_pt), obs, camera, bf, max_iterations=iterations)
+    apply_ba_result(mp, kfs, fixed, pts, o_kf, o_kp, res)
+    return res
+
+
+def apply_ba_result(mp: Map, kfs: dict[int, KeyFrame], fixed: set[int], pts: np.ndarray, o_kf: np.ndarray,
+                    o_kp: np.ndarray, res) -> None:
+    """Write a bundle adjustment back: poses of the free keyframes, point positions, outlier
+    observations removed from their keyframes, point geometry recomputed."""
     for k, f in kfs.items():
         if k not in fixed:
             f.set_pose(se3_inv(res.T_c_w[k]))
     mp.xyz[pts] = res.points
-    for k in np.unique(o_kf[res.outlier]):
+    for k in np.unique(o_kf[res.outlier]):  # loop over keyframes
         sel = res.outlier & (o_kf == k)
         mp.keyframes[int(k)].map_point_ids[o_kp[sel]] = -1
     mp.invalidate()
     mp.update_geometry(pts)
-    return res
 
 
-def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMappingConfig, bf: float,
-                 scale_factor: float) -> dict:
-    """Local BA around ``kf``; writes poses and points back, removes outlier observations."""
-    local = [kf.id] + mp.best_covisibles(kf.id, cfg.ba_window - 1)
+@dataclass
+class LocalBAWindow:
+    """What local BA optimises around a keyframe: the ``local`` keyframes (moved), the ``fixed`` ones
+    (seeing the points from outside the window; the map origin too when it is local), the points
+    ``pts`` (sorted ids) and their observations ``(o_kf, o_pt, o_kp)`` by those keyframes."""
+
+    local: list[int]
+    fixed: set[int]
+    pts: np.ndarray
+    o_kf: np.ndarray
+    o_pt: np.ndarray
+    o_kp: np.ndarray
+
+
+def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int) -> LocalBAWindow | None:
+    """``kf`` and its ``window - 1`` best covisible keyframes, all their points, and at most ``max_fixed``
+    other keyframes (those observing most of the points) held fixed; None without points."""
+    local = [kf.id] + mp.best_covisibles(kf.id, window - 1)
     pts = np.concatenate([mp.keyframes[k].map_point_ids for k in local])
     pts = np.unique(pts[pts >= 0])
     pts = pts[mp.alive[pts]]
     if len(pts) == 0:
-        return {"ba_points": 0}
+        return None
     o_kf, o_pt, o_kp = mp.observations_of(pts)
-    others = {}
-    for k, c in zip(*np.unique(o_kf[~np.isin(o_kf, local)], return_counts=True)):
-        others[int(k)] = int(c)
-    fixed = sorted(others, key=lambda k: (-others[k], k))[: cfg.ba_max_fixed]
+    outside, counts = np.unique(o_kf[~np.isin(o_kf, local)], return_counts=True)
+    order = np.lexsort((outside, -counts))
+    fixed = [int(k) for k in outside[order][:max_fixed]]
     origin = min(mp.keyframes)
     fixed_set = set(fixed) | ({origin} if origin in local else set())
     if not fixed_set:
         fixed_set = {min(local)}
     use = np.isin(o_kf, local + fixed)
-    kfs = {k: mp.keyframes[k] for k in set(local) | set(fixed)}
-    res = bundle_adjust_map(mp, kfs, fixed_set, pts, o_kf[use], o_pt[use], o_kp[use], camera, bf, scale_factor,
-                            cfg.ba_iterations)
-    return {"ba_points": int(len(pts)), "ba_keyframes": len(local), "ba_fixed": len(fixed_set),
-            "ba_outliers": int(res.outlier.sum()), "ba_cost_before": res.cost_before, "ba_cost_after": res.cost_after}
+    return LocalBAWindow(local, fixed_set, pts, o_kf[use], o_pt[use], o_kp[use])
+
+
+def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMappingConfig, bf: float,
+                 scale_factor: float, capped: bool = False) -> dict:
+    """Local BA around ``kf`` (:func:`local_ba_window`, :func:`bundle_adjust_map`); writes poses and
+    points back, removes outlier observations. ``capped`` (a bad stretch of tracking): the smaller
+    window ``capped_ba_window`` and ``capped_ba_iterations``."""
+    window = cfg.capped_ba_window if capped else cfg.ba_window
+    iterations = cfg.capped_ba_iterations if capped else cfg.ba_iterations
+    win = local_ba_window(mp, kf, window, cfg.ba_max_fixed)
+    if win is None:
+        return {"ba_points": 0}
+    kfs = {k: mp.keyframes[k] for k in set(win.local) | win.fixed}
+    res = bundle_adjust_map(mp, kfs, win.fixed, win.pts, win.o_kf, win.o_pt, win.o_kp, camera, bf, scale_factor,
+                            iterations)
+    return {"ba_points": int(len(win.pts)), "ba_keyframes": len(win.local), "ba_fixed": len(win.fixed),
+            "ba_outliers": int(res.outlier.sum()), "ba_cost_before": res.cost_before, "ba_cost_after": res.cost_after,
+            "ba_iterations": res.iterations, "ba_capped": bool(capped)}
 
 
 def cull_keyframes(mp: Map, kf: KeyFrame, cfg: LocalMappingConfig, close_depth: float) -> list[int]:
@@ -300,8 +347,9 @@ class LocalMapper:
     recent: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     n_processed: int = 0
 
-    def process(self, kf: KeyFrame, new_points: np.ndarray) -> dict:
-        """Run local mapping for a keyframe just inserted (with its new point ids)."""
+    def process(self, kf: KeyFrame, new_points: np.ndarray, capped: bool = False) -> dict:
+        """Run local mapping for a keyframe just inserted (with its new point ids); ``capped``: tracking is
+        in a bad stretch, local BA runs with its capped window and iterations."""
         mp = self.map
         stats: dict = {}
         mp.update_geometry(kf.map_point_ids[kf.map_point_ids >= 0])
@@ -311,7 +359,7 @@ class LocalMapper:
         mp.update_descriptors(kf.map_point_ids[kf.map_point_ids >= 0])
         self.n_processed += 1
         if len(mp.keyframes) > 1 and self.n_processed % max(self.cfg.ba_every, 1) == 0:
-            stats.update(run_local_ba(mp, kf, self.camera, self.cfg, self.bf, self.scale_factor))
+            stats.update(run_local_ba(mp, kf, self.camera, self.cfg, self.bf, self.scale_factor, capped))
         if self.cfg.kf_cull:
             stats["culled_keyframes"] = cull_keyframes(mp, kf, self.cfg, self.close_depth)
         return stats

@@ -1,31 +1,57 @@
-"""Pose-only optimisation and local bundle adjustment with robust loss
-(ORB-SLAM2, Mur-Artal and Tardos, T-RO 2017, Sec. III-C, eqs. 2-4).
+"""Pose-only optimisation and bundle adjustment with a robust kernel
+(ORB-SLAM2, Mur-Artal and Tardos, T-RO 2017, Sec. III-C, eqs. 2-4), solved by Levenberg-Marquardt
+on the normal equations with analytic Jacobians and, for bundle adjustment, the Schur complement.
 
-A keypoint observed at ``(u, v)`` with depth ``z`` gives the "stereo" measurement
-``x = (u, v, u_R)`` with ``u_R = u - bf / z`` (eq. 1; without depth only ``(u, v)``).
-The projection of a world point ``X_w`` into a camera with pose ``T_c_w = (R, t)`` is::
+**Measurement.** A keypoint observed at ``(u, v)`` with depth ``z`` gives the "stereo" measurement
+``x = (u, v, u_R)`` with ``u_R = u - bf / z`` (eq. 1; without depth only ``(u, v)``). The
+projection of a world point ``X_w`` into a camera with pose ``T_c_w = (R, t)`` is::
 
     X_c = R X_w + t,    pi(X_c) = ( fx x/z + cx,  fy y/z + cy,  fx x/z + cx - bf / z )
 
-**Motion-only BA** (eq. 2) optimises one pose over its matched points::
+and the whitened residual of one observation is ``e = (pi(X_c) - x) / sigma`` with
+``sigma = scale_factor ** octave`` (``Sigma = sigma^2 I``, one pixel at level 0), so that
+``chi^2 = ||e||^2``. An observation whose ``chi^2`` exceeds the 95 % quantile (5.991 for 2, 7.815
+for 3 degrees of freedom) is an outlier.
 
-    {R, t} = argmin  sum_i  rho( || x_i - pi(R X_i + t) ||^2_Sigma )
+**Motion-only BA** (eq. 2) optimises one pose over its matched points; **local BA** (eqs. 3-4)
+the poses of the covisible keyframes ``K_L`` and all the points ``P_L`` they see, keyframes ``K_F``
+that see those points entering with fixed poses::
 
-**Local BA** (eq. 3-4) optimises the poses of the covisible keyframes ``K_L`` and all the points
-``P_L`` they see; keyframes ``K_F`` that see those points but are not in ``K_L`` enter the cost
-with fixed poses. ``Sigma = sigma_s^2 I`` with ``sigma_s = scale_factor ** octave`` (one pixel at
-level 0), ``rho`` the Huber cost. An observation whose ``chi^2`` exceeds the 95 % quantile
-(5.991 for 2, 7.815 for 3 degrees of freedom) is an outlier.
+    {R, t} = argmin  sum_i  rho( chi^2_i )          rho = Huber, delta^2 = 7.815 (g2o in ORB-SLAM2)
 
-Our reading: both problems go to ``scipy.optimize.least_squares`` with an analytic Jacobian
-(sparse for local BA). The Huber kernel (``delta^2 = 7.815`` on an observation's chi^2, as g2o in
-ORB-SLAM2) is applied by iteratively re-weighted least squares: each round fixes the weights
-``sqrt(rho'(chi^2))`` from the residuals at its start. (``least_squares(loss="huber")`` itself
-rescales the problem in a way that converged slowly here: 3x lower cost after 10 evaluations
-where re-weighting gives 200x.) A pose is parametrised around its current value as
-``R = exp(omega) R0, t = t0 + tau`` so the rotation Jacobian is
-``dX_c / d omega = -[R X_w]_x J_l(omega)`` (left Jacobian of SO(3)). As in ORB-SLAM2, motion-only BA
-runs in rounds that re-classify outliers, the last round without the robust kernel.
+**The Jacobian.** A step ``(omega, tau)`` moves a pose on the left, ``R <- Exp(omega) R``,
+``t <- t + tau``, and a point by ``X_w <- X_w + delta``. At the current estimate::
+
+    dX_c / d omega = -[R X_w]_x,     dX_c / d tau = I,     dX_c / d X_w = R
+
+    d pi / d X_c = [[ fx/z,    0,  -fx x / z^2         ],
+                    [    0, fy/z,  -fy y / z^2         ],
+                    [ fx/z,    0,  -fx x / z^2 + bf/z^2 ]]
+
+and ``J = (1 / sigma) (d pi / d X_c) (d X_c / d parameters)`` (the third row zero without depth).
+
+**Robust kernel** by iteratively re-weighted least squares: at each linearisation an observation
+gets the weight ``w = rho'(chi^2) = min(1, delta / sqrt(chi^2))`` (as g2o re-evaluates its kernel at
+every iteration), so the fixed point of the iteration is the Huber minimum.
+
+**Levenberg-Marquardt.** One step solves ``(H + lambda D) dx = -g`` with ``H = sum J^T w J``,
+``g = sum J^T w e`` and ``D = diag(H)``; it is kept when the robust cost falls (``lambda / 10``),
+otherwise undone (``lambda x 10``). Iterations stop early when the cost stops falling (relative
+change below ``1e-6``) or the step is below ``1e-9``.
+
+**Schur complement** (bundle adjustment). With the camera parameters ``c`` and the points ``p`` the
+normal equations are ``[[H_cc, H_cp], [H_pc, H_pp]] [dc; dp] = -[g_c; g_p]``. ``H_pp`` is
+block-diagonal (one 3x3 block per point), so the points are eliminated::
+
+    (H_cc - H_cp H_pp^-1 H_pc) dc = -g_c + H_cp H_pp^-1 g_p,      dp = -H_pp^-1 (g_p + H_pc dc)
+
+``H_cc`` is block-diagonal too (6x6 per free keyframe), ``H_cp`` has one 6x3 block per observation;
+the reduced camera system is ``6 x (free keyframes)`` square, small and dense.
+
+As in ORB-SLAM2, motion-only BA runs in rounds that re-classify outliers, the last one without the
+robust kernel, and local BA runs one robust round, drops the chi^2 outliers and runs a plain one.
+The same problems with scipy's general ``least_squares`` are in :mod:`.scipy_reference` (tests and
+``benchmarks/solver_speed.py`` compare the two).
 """
 
 from __future__ import annotations
@@ -34,10 +60,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
+from scipy.sparse.linalg import spsolve
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import nearest_rotation, so3_exp
+from ..geometry.se3 import nearest_rotation
 
 __all__ = [
     "CHI2_2DOF",
@@ -45,13 +72,21 @@ __all__ = [
     "Observations",
     "project_stereo",
     "observation_chi2",
+    "huber_weight",
+    "huber_cost",
+    "stereo_jacobian",
     "optimize_pose",
     "local_bundle_adjustment",
+    "solve_spd",
     "BAResult",
 ]
 
 CHI2_2DOF = 5.991  # chi^2 95 % quantile, 2 dof (ORB-SLAM2)
 CHI2_3DOF = 7.815  # chi^2 95 % quantile, 3 dof (ORB-SLAM2)
+HUBER_DELTA2 = CHI2_3DOF  # Huber threshold on chi^2; g2o's robust kernel in ORB-SLAM2: sqrt(7.815)
+_REL_TOL = 1e-6  # stop when the cost falls by less than this fraction in an iteration
+_STEP_TOL = 1e-9  # ... or the step is this small (rad, m)
+_MIN_DEPTH = 1e-6  # camera points closer than this (m) are left out of an iteration (behind the camera)
 
 
 @dataclass
@@ -80,25 +115,22 @@ class Observations:
     def __len__(self) -> int:
         return len(self.uv)
 
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``(K, 3)`` -> ``(K, 3, 3)`` cross-product matrices."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
+    def subset(self, idx: np.ndarray) -> "Observations":
+        """The observations at indices / boolean mask ``idx``."""
+        return Observations(self.uv[idx], self.ur[idx], self.sigma[idx])
 
 
-def _left_jacobian(omega: np.ndarray) -> np.ndarray:
-    """Left Jacobian of SO(3), ``(..., 3)`` -> ``(..., 3, 3)``."""
+def _rodrigues(omega: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``(..., 3)`` -> matrices ``(..., 3, 3)``: ``Exp(omega)`` (Rodrigues' formula)."""
     omega = np.asarray(omega, float)
     th = np.linalg.norm(omega, axis=-1)[..., None, None]
-    W = _skew(omega)
-    small = th < 1e-6
+    W = np.zeros(omega.shape[:-1] + (3, 3))
+    W[..., 0, 1], W[..., 0, 2], W[..., 1, 2] = -omega[..., 2], omega[..., 1], -omega[..., 0]
+    W[..., 1, 0], W[..., 2, 0], W[..., 2, 1] = omega[..., 2], -omega[..., 1], omega[..., 0]
+    small = th < 1e-8
     ths = np.where(small, 1.0, th)
-    a = np.where(small, 0.5, (1 - np.cos(ths)) / ths**2)
-    b = np.where(small, 1.0 / 6.0, (ths - np.sin(ths)) / ths**3)
+    a = np.where(small, 1.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths**2)
     return np.eye(3) + a * W + b * (W @ W)
 
 
@@ -110,8 +142,8 @@ def project_stereo(X_c: np.ndarray, camera: PinholeCamera, bf: float) -> np.ndar
     return np.stack([u, v, u - bf / z], axis=1)
 
 
-def _proj_jac(X_c: np.ndarray, camera: PinholeCamera, bf: float) -> np.ndarray:
-    """``(K, 3, 3)`` Jacobian of ``(u, v, u_R)`` with respect to ``X_c``."""
+def stereo_jacobian(X_c: np.ndarray, camera: PinholeCamera, bf: float) -> np.ndarray:
+    """``(K, 3, 3)`` Jacobian ``d(u, v, u_R) / d X_c`` (module docstring)."""
     x, y, z = X_c[:, 0], X_c[:, 1], X_c[:, 2]
     iz = 1.0 / z
     iz2 = iz * iz
@@ -138,10 +170,92 @@ def _residuals(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: fl
 def observation_chi2(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[np.ndarray, np.ndarray]:
     """``chi^2 (K,)`` of each observation and whether it is an outlier (95 % quantile by dof);
     points behind the camera are outliers."""
-    r, has_d = _residuals(X_c, obs, camera, bf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r, has_d = _residuals(X_c, obs, camera, bf)
     chi2 = np.sum(r**2, axis=1)
-    bad = (chi2 > np.where(has_d, CHI2_3DOF, CHI2_2DOF)) | ~(X_c[:, 2] > 0)
+    bad = ~(chi2 <= np.where(has_d, CHI2_3DOF, CHI2_2DOF)) | ~(X_c[:, 2] > 0)
     return chi2, bad
+
+
+def huber_weight(chi2: np.ndarray, delta2: float | None) -> np.ndarray:
+    """IRLS weight ``rho'(chi^2)`` of the Huber kernel: 1 inside, ``delta / sqrt(chi^2)`` beyond
+    ``delta^2``; all ones for ``delta2 = None`` (no kernel)."""
+    if delta2 is None:
+        return np.ones_like(chi2)
+    return np.sqrt(delta2 / np.maximum(chi2, delta2))
+
+
+def huber_cost(chi2: np.ndarray, delta2: float | None) -> np.ndarray:
+    """Huber cost ``rho(chi^2)``: ``chi^2`` inside, ``2 delta sqrt(chi^2) - delta^2`` beyond ``delta^2``."""
+    if delta2 is None:
+        return chi2
+    return np.where(chi2 <= delta2, chi2, 2.0 * np.sqrt(delta2 * chi2) - delta2)
+
+
+def _whitened_jacobian(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> np.ndarray:
+    """``(K, 3, 3)`` ``(1 / sigma) d pi / d X_c``, third row zero without depth."""
+    Jp = stereo_jacobian(X_c, camera, bf) / obs.sigma[:, None, None]
+    Jp[~np.isfinite(obs.ur), 2, :] = 0.0
+    return Jp
+
+
+def _pose_columns(Jp: np.ndarray, RX: np.ndarray) -> np.ndarray:
+    """``(K, 3, 6)`` Jacobian of the residuals in the pose step ``(omega, tau)``:
+    ``Jp [-[R X]_x, I]``; row ``a`` of ``Jp -[v]_x`` is ``v x a``."""
+    v = RX[:, None, :]
+    J = np.empty(Jp.shape[:2] + (6,))
+    J[..., 0] = v[..., 1] * Jp[..., 2] - v[..., 2] * Jp[..., 1]
+    J[..., 1] = v[..., 2] * Jp[..., 0] - v[..., 0] * Jp[..., 2]
+    J[..., 2] = v[..., 0] * Jp[..., 1] - v[..., 1] * Jp[..., 0]
+    J[..., 3:] = Jp
+    return J
+
+
+# ------------------------------------------------------------------------------------ pose only
+def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
+                   bf: float, delta2: float | None) -> tuple[float, tuple]:
+    """Robust cost of the pose ``(R, t)`` and what its linearisation needs (points behind the camera
+    left out)."""
+    RX = X_w @ R.T
+    X_c = RX + t
+    front = X_c[:, 2] > _MIN_DEPTH
+    if not front.all():
+        RX, X_c, obs = RX[front], X_c[front], obs.subset(front)
+    r, _ = _residuals(X_c, obs, camera, bf)
+    chi2 = np.einsum("ij,ij->i", r, r)
+    return float(huber_cost(chi2, delta2).sum()), (RX, X_c, obs, r, huber_weight(chi2, delta2))
+
+
+def _lm_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float,
+             delta2: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None);
+    returns ``(R, t, cost)``."""
+    lam = 1e-4
+    cost, (RX, X_c, o, r, w) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2)
+    for _ in range(iterations):
+        J = _pose_columns(_whitened_jacobian(X_c, o, camera, bf), RX).reshape(-1, 6)
+        w3 = np.repeat(w, 3)
+        H = J.T @ (J * w3[:, None])
+        g = J.T @ (w3 * r.ravel())
+        while True:
+            try:
+                dx = -np.linalg.solve(H + np.diag(lam * np.diag(H) + 1e-12), g)
+            except np.linalg.LinAlgError:
+                dx = np.zeros(6)
+            R_new, t_new = _rodrigues(dx[:3]) @ R, t + dx[3:]
+            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2)
+            if new <= cost or lam > 1e8:
+                break
+            lam *= 10.0
+        if new > cost:  # no step lowers the cost: converged
+            break
+        R, t, lam = R_new, t_new, max(lam / 10.0, 1e-9)
+        RX, X_c, o, r, w = state
+        done = cost - new <= _REL_TOL * cost or np.abs(dx).max() < _STEP_TOL
+        cost = new
+        if done:
+            break
+    return R, t, cost
 
 
 def optimize_pose(
@@ -151,7 +265,7 @@ def optimize_pose(
     camera: PinholeCamera,
     bf: float,
     rounds: int = 4,
-    max_nfev: int = 10,
+    max_iterations: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Motion-only bundle adjustment (ORB-SLAM2 eq. 2).
 
@@ -159,67 +273,38 @@ def optimize_pose(
     ----------
     T_c_w : ``(4, 4)`` initial world-to-camera pose.
     X_w : ``(K, 3)`` world points (metres); obs : their measurements.
-    rounds : outlier re-classification rounds (ORB-SLAM2: 4); the last without Huber.
-    max_nfev : iterations per round (ORB-SLAM2: 10).
+    rounds : outlier re-classification rounds (ORB-SLAM2: 4); the last without the Huber kernel.
+    max_iterations : Levenberg-Marquardt iterations per round at most (ORB-SLAM2: 10).
 
     Returns
     -------
-    ``(T_c_w (4, 4), outlier (K,) bool)``.
+    ``(T_c_w (4, 4), outlier (K,) bool)``: after each round every observation (also the outliers of
+    the round before) is classified again by its chi^2.
     """
     X_w = np.asarray(X_w, float).reshape(-1, 3)
     if len(X_w) != len(obs):
         raise ValueError(f"optimize_pose: {len(X_w)} points but {len(obs)} observations")
-    R0 = nearest_rotation(np.asarray(T_c_w, float)[:3, :3])
-    t0 = np.asarray(T_c_w, float)[:3, 3].copy()
-    outlier = np.zeros(len(X_w), bool)
     if len(X_w) < 3:
         return np.asarray(T_c_w, float).copy(), np.ones(len(X_w), bool)
-    delta2 = CHI2_3DOF
+    R = nearest_rotation(np.asarray(T_c_w, float)[:3, :3])
+    t = np.asarray(T_c_w, float)[:3, 3].copy()
+    outlier = np.zeros(len(X_w), bool)
     for rnd in range(rounds):
         use = ~outlier
         if use.sum() < 3:
             break
-        Xu = X_w[use]
-        ou = Observations(obs.uv[use], obs.ur[use], obs.sigma[use])
-        # Huber kernel by re-weighting (IRLS): weight sqrt(rho'(chi^2)) per observation from the
-        # residuals at the start of the round; the last round has no kernel (ORB-SLAM2).
-        if rnd < rounds - 1:
-            chi2, _ = observation_chi2(Xu @ R0.T + t0, ou, camera, bf)
-            w = np.sqrt(np.where(chi2 <= delta2, 1.0, np.sqrt(delta2 / np.maximum(chi2, 1e-12))))
-        else:
-            w = np.ones(len(Xu))
-        w3 = np.repeat(w, 3)
-        no_depth = ~np.isfinite(ou.ur)
-
-        def fun(p):
-            X_c = Xu @ (so3_exp(p[:3]) @ R0).T + t0 + p[3:]
-            r, _ = _residuals(X_c, ou, camera, bf)
-            return r.ravel() * w3
-
-        def jac(p):
-            R = so3_exp(p[:3]) @ R0
-            RX = Xu @ R.T
-            X_c = RX + t0 + p[3:]
-            Jp = _proj_jac(X_c, camera, bf) / ou.sigma[:, None, None]
-            Jp[no_depth, 2, :] = 0.0
-            Jrot = -_skew(RX) @ _left_jacobian(p[:3])
-            J = np.concatenate([Jp @ Jrot, Jp], axis=2)  # (K, 3, 6)
-            return J.reshape(-1, 6) * w3[:, None]
-
-        res = least_squares(fun, np.zeros(6), jac=jac, method="lm", max_nfev=max_nfev)
-        p = res.x
-        R0 = so3_exp(p[:3]) @ R0
-        t0 = t0 + p[3:]
-        X_c = X_w @ R0.T + t0
-        _, outlier = observation_chi2(X_c, obs, camera, bf)
+        delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
+        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations)
+        _, outlier = observation_chi2(X_w @ R.T + t, obs, camera, bf)
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R0, t0
+    T[:3, :3], T[:3, 3] = R, t
     return T, outlier
 
 
+# ----------------------------------------------------------------------------- bundle adjustment
 @dataclass
 class BAResult:
-    """Result of local BA: optimised poses ``T_c_w`` per keyframe id, points ``(P, 3)`` in the
+    """Result of bundle adjustment: optimised poses ``T_c_w`` per keyframe id, points ``(P, 3)`` in the
     order given, and ``outlier (K,)`` per observation (chi^2 test after optimisation)."""
 
     T_c_w: dict[int, np.ndarray]
@@ -227,6 +312,203 @@ class BAResult:
     outlier: np.ndarray
     cost_before: float
     cost_after: float
+    iterations: int = 0
+
+
+@dataclass
+class _BAProblem:
+    """The arrays of one bundle adjustment.
+
+    ``R (C, 3, 3)``, ``t (C, 3)``: every camera's ``T_c_w``; ``X (P, 3)`` the points; per
+    observation its camera row ``cam (K,)`` and point ``pt (K,)``; ``free_cam (F,)`` the camera rows
+    that move and ``slot (K,)`` each observation's index into them (-1 for a fixed camera).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    X: np.ndarray
+    cam: np.ndarray
+    pt: np.ndarray
+    free_cam: np.ndarray
+    slot: np.ndarray
+    obs: Observations
+    camera: PinholeCamera
+    bf: float
+    unique_pairs: bool = True  # no free camera observes a point twice
+
+    def camera_points(self, R=None, t=None, X=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(R X_w, X_c)`` of every observation, ``(K, 3)`` each."""
+        R = self.R if R is None else R
+        t = self.t if t is None else t
+        X = self.X if X is None else X
+        RX = np.einsum("kij,kj->ki", R[self.cam], X[self.pt])
+        return RX, RX + t[self.cam]
+
+    def cost(self, weight: np.ndarray, delta2: float | None, R=None, t=None, X=None) -> float:
+        """Robust cost ``sum weight rho(chi^2)`` (observations behind a camera left out)."""
+        _, X_c = self.camera_points(R, t, X)
+        use = (X_c[:, 2] > _MIN_DEPTH) & (weight > 0)
+        r, _ = _residuals(X_c[use], self.obs.subset(use), self.camera, self.bf)
+        return float((weight[use] * huber_cost(np.einsum("ij,ij->i", r, r), delta2)).sum())
+
+    def moved(self, dc: np.ndarray, dp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(R, t, X)`` after the step ``dc (F, 6)``, ``dp (P, 3)``."""
+        R, t = self.R.copy(), self.t.copy()
+        R[self.free_cam] = _rodrigues(dc[:, :3]) @ self.R[self.free_cam]
+        t[self.free_cam] += dc[:, 3:]
+        return R, t, self.X + dp
+
+
+@dataclass
+class _NormalEquations:
+    """The blocks of ``H = J^T W J`` and ``g = J^T W e`` of a bundle adjustment: ``H_cc (F, 6, 6)`` per
+    free camera, ``H_pp (P, 3, 3)`` per point, ``H_cp (Kf, 6, 3)`` per observation by a free camera
+    (its slot ``s (Kf,)`` and point ``p (Kf,)``), ``g_c (F, 6)``, ``g_p (P, 3)``."""
+
+    H_cc: np.ndarray
+    H_pp: np.ndarray
+    H_cp: np.ndarray
+    s: np.ndarray
+    p: np.ndarray
+    g_c: np.ndarray
+    g_p: np.ndarray
+    unique_pairs: bool
+
+
+def _ba_normal_equations(pb: _BAProblem, weight: np.ndarray, delta2: float | None) -> _NormalEquations:
+    """Linearise at the current estimate and accumulate the normal equations' blocks.
+
+    Per observation ``k`` (camera ``c``, point ``p``): the whitened residual ``e_k (3,)``, the IRLS
+    weight ``w_k = rho'(chi^2_k) weight_k`` (zero behind the camera), the point columns
+    ``J_p = (1/sigma) dpi/dX_c R`` and the pose columns ``J_c = (1/sigma) dpi/dX_c [-[R X]_x, I]``;
+    ``H_pp += J_p^T w J_p``, ``H_cc += J_c^T w J_c``, ``H_cp = J_c^T w J_p``, ``g += J^T w e``.
+    """
+    RX, X_c = pb.camera_points()
+    front = X_c[:, 2] > _MIN_DEPTH
+    X_c = np.where(front[:, None], X_c, [0.0, 0.0, 1.0])  # placeholder depth: their weight is zero
+    r, _ = _residuals(X_c, pb.obs, pb.camera, pb.bf)
+    w = huber_weight(np.einsum("ij,ij->i", r, r), delta2) * weight * front
+    Jx = _whitened_jacobian(X_c, pb.obs, pb.camera, pb.bf)
+    J_pt = Jx @ pb.R[pb.cam]
+    JptT_w = (J_pt * w[:, None, None]).transpose(0, 2, 1)
+    n_pts = len(pb.X)
+    H_pp = _block_sum(JptT_w @ J_pt, pb.pt, n_pts)
+    g_p = _block_sum((JptT_w @ r[:, :, None])[..., 0], pb.pt, n_pts)
+    free = pb.slot >= 0
+    s, p = pb.slot[free], pb.pt[free]
+    J_cam = _pose_columns(Jx[free], RX[free])
+    JcT_w = (J_cam * w[free, None, None]).transpose(0, 2, 1)
+    F = len(pb.free_cam)
+    H_cc = _block_sum(JcT_w @ J_cam, s, F)
+    g_c = _block_sum((JcT_w @ r[free][:, :, None])[..., 0], s, F)
+    return _NormalEquations(H_cc, H_pp, JcT_w @ J_pt[free], s, p, g_c, g_p, pb.unique_pairs)
+
+
+def _block_sum(values: np.ndarray, index: np.ndarray, n: int) -> np.ndarray:
+    """Sum the blocks ``values (K, ...)`` into ``n`` bins by ``index (K,)`` (one bincount per entry)."""
+    flat = values.reshape(len(values), -1)
+    out = np.empty((n, flat.shape[1]))
+    for i in range(flat.shape[1]):  # loop over the entries of a block (at most 36)
+        out[:, i] = np.bincount(index, weights=flat[:, i], minlength=n)
+    return out.reshape((n,) + values.shape[1:])
+
+
+def _damped(H: np.ndarray, lam: float) -> np.ndarray:
+    """``H + lambda diag(H)`` for a stack of square blocks (plus a tiny ridge for empty blocks)."""
+    d = np.einsum("...ii->...i", H)
+    return H + (lam * d + 1e-9)[..., :, None] * np.eye(H.shape[-1])
+
+
+_DENSE_SCHUR_MAX = 4_000_000  # entries of the dense (6F, 3P) H_cp above which the sparse product is used
+
+
+def _schur_step(ne: _NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """One damped Gauss-Newton step ``(dc (F, 6), dp (P, 3))``, the points eliminated by the Schur
+    complement (module docstring)."""
+    F, n_pts = len(ne.H_cc), len(ne.H_pp)
+    H_pp_inv = np.linalg.inv(_damped(ne.H_pp, lam))
+    if F == 0:
+        return np.zeros((0, 6)), -(H_pp_inv @ ne.g_p[:, :, None])[..., 0]
+    W = ne.H_cp
+    Y = W @ H_pp_inv[ne.p]  # the blocks of H_cp H_pp^-1
+    if 18 * F * n_pts <= _DENSE_SCHUR_MAX:  # few free cameras (local BA): dense (6F, 3P) matrices
+        Yd = np.zeros((F, 6, n_pts, 3))
+        Wd = np.zeros((F, 6, n_pts, 3))
+        if ne.unique_pairs:
+            Yd[ne.s, :, ne.p], Wd[ne.s, :, ne.p] = Y, W
+        else:  # a keyframe observing a point twice
+            np.add.at(Yd, (ne.s, slice(None), ne.p), Y)
+            np.add.at(Wd, (ne.s, slice(None), ne.p), W)
+        Y_m, W_m = Yd.reshape(6 * F, 3 * n_pts), Wd.reshape(6 * F, 3 * n_pts)
+    else:  # many (global BA): the same products with sparse matrices
+        rows = np.broadcast_to(6 * ne.s[:, None, None] + np.arange(6)[None, :, None], W.shape).ravel()
+        cols = np.broadcast_to(3 * ne.p[:, None, None] + np.arange(3)[None, None, :], W.shape).ravel()
+        Y_m = sp.csr_matrix((Y.ravel(), (rows, cols)), shape=(6 * F, 3 * n_pts))
+        W_m = sp.csr_matrix((W.ravel(), (rows, cols)), shape=(6 * F, 3 * n_pts))
+    S = Y_m @ W_m.T  # H_cp H_pp^-1 H_pc
+    S = -(S.toarray() if sp.issparse(S) else S)
+    S.reshape(F, 6, F, 6)[np.arange(F), :, np.arange(F), :] += _damped(ne.H_cc, lam)
+    dc = solve_spd(S, -ne.g_c.ravel() + Y_m @ ne.g_p.ravel()).reshape(F, 6)
+    H_pc_dc = _block_sum((W.transpose(0, 2, 1) @ dc[ne.s][:, :, None])[..., 0], ne.p, n_pts)
+    return dc, -(H_pp_inv @ (ne.g_p + H_pc_dc)[:, :, None])[..., 0]
+
+
+def solve_spd(S, b: np.ndarray) -> np.ndarray:
+    """Solve a symmetric positive-definite system ``S x = b`` (dense Cholesky; sparse LU when ``S`` is
+    large or given sparse). Shared with :mod:`.pose_graph`."""
+    if S.shape[0] > 1200:
+        return spsolve(sp.csc_matrix(S), b)
+    if sp.issparse(S):
+        S = S.toarray()
+    try:
+        return cho_solve(cho_factor(S, check_finite=False), b, check_finite=False)
+    except LinAlgError:
+        return np.linalg.lstsq(S, b, rcond=None)[0]
+
+
+def _lm_ba(pb: _BAProblem, weight: np.ndarray, delta2: float | None, iterations: int) -> int:
+    """Levenberg-Marquardt on ``pb`` (in place) with observation weights ``weight (K,)``; returns the
+    iterations run."""
+    lam = 1e-4
+    cost = pb.cost(weight, delta2)
+    it = 0
+    for it in range(1, iterations + 1):
+        ne = _ba_normal_equations(pb, weight, delta2)
+        while True:
+            dc, dp = _schur_step(ne, lam)
+            R, t, X = pb.moved(dc, dp)
+            new = pb.cost(weight, delta2, R, t, X)
+            if new <= cost or lam > 1e8:
+                break
+            lam *= 10.0
+        if new > cost:  # no step lowers the cost: converged
+            break
+        step = max(np.abs(dc).max(initial=0.0), np.abs(dp).max(initial=0.0))
+        pb.R, pb.t, pb.X, lam = R, t, X, max(lam / 10.0, 1e-9)
+        done = cost - new <= _REL_TOL * cost or step < _STEP_TOL
+        cost = new
+        if done:
+            break
+    return it
+
+
+def _ba_problem(poses: dict[int, np.ndarray], fixed: set[int], points: np.ndarray, obs_cam: np.ndarray,
+                obs_pt: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[_BAProblem, np.ndarray]:
+    """Gather the arrays of a bundle adjustment; also returns the keyframe ids of the camera rows."""
+    cam_ids = np.array(sorted(poses), np.int64)
+    T = np.stack([np.asarray(poses[int(k)], float) for k in cam_ids]) if len(cam_ids) else np.zeros((0, 4, 4))
+    R = np.stack([nearest_rotation(M[:3, :3]) for M in T]) if len(T) else np.zeros((0, 3, 3))
+    cam = np.searchsorted(cam_ids, np.asarray(obs_cam, np.int64))
+    is_free = ~np.isin(cam_ids, np.array(sorted(fixed), np.int64))
+    free_cam = np.flatnonzero(is_free)
+    slot_of = np.full(len(cam_ids), -1, np.int64)
+    slot_of[free_cam] = np.arange(len(free_cam))
+    X = np.asarray(points, float).reshape(-1, 3).copy()
+    pt, slot = np.asarray(obs_pt, np.int64), slot_of[cam]
+    pair = (slot * len(X) + pt)[slot >= 0]
+    pb = _BAProblem(R, T[:, :3, 3].copy(), X, cam, pt, free_cam, slot, obs, camera, bf,
+                    unique_pairs=len(np.unique(pair)) == len(pair))
+    return pb, cam_ids
 
 
 def local_bundle_adjustment(
@@ -238,11 +520,10 @@ def local_bundle_adjustment(
     obs: Observations,
     camera: PinholeCamera,
     bf: float,
-    max_nfev: int = 10,
+    max_iterations: int = 10,
     second_round: bool = True,
-    lsmr_iterations: int = 30,
 ) -> BAResult:
-    """Local bundle adjustment (ORB-SLAM2 eqs. 3-4) with a sparse Jacobian.
+    """Bundle adjustment (ORB-SLAM2 eqs. 3-4): Levenberg-Marquardt with the Schur complement.
 
     Parameters
     ----------
@@ -251,109 +532,28 @@ def local_bundle_adjustment(
     points : ``(P, 3)`` world points to optimise.
     obs_cam : ``(K,)`` keyframe id of each observation; obs_pt : ``(K,)`` index into ``points``.
     obs : the measurements ``(K)``.
-    max_nfev : evaluations of ``least_squares`` per round.
+    max_iterations : Levenberg-Marquardt iterations per round at most.
     second_round : after the Huber round, drop chi^2 outliers and optimise again without the
         robust kernel (ORB-SLAM2 does 5 + 10 iterations).
-    lsmr_iterations : inner LSMR iterations per trust-region step.
 
-    The Huber cost is minimised by re-weighting (IRLS) rather than ``least_squares(loss="huber")``,
-    whose rescaling converges slowly from residuals of a few sigma (measured: cost 3x lower after 10
-    evaluations instead of 200x).
+    Returns
+    -------
+    BAResult; ``cost_before`` / ``cost_after`` are ``0.5 sum chi^2`` over all observations.
     """
-    points = np.asarray(points, float).reshape(-1, 3)
-    obs_cam = np.asarray(obs_cam, np.int64)
-    obs_pt = np.asarray(obs_pt, np.int64)
-    free_ids = sorted(k for k in poses if k not in fixed)
-    col_of = {k: i for i, k in enumerate(free_ids)}
-    n_free, n_pts = len(free_ids), len(points)
-    cam_ids = np.array(sorted(poses), np.int64)
-    R0 = np.stack([nearest_rotation(np.asarray(poses[k], float)[:3, :3]) for k in cam_ids])
-    t0 = np.stack([np.asarray(poses[k], float)[:3, 3] for k in cam_ids])
-    cam_row = np.searchsorted(cam_ids, obs_cam)
-    free_slot = np.array([col_of.get(int(k), -1) for k in cam_ids], np.int64)[cam_row]  # (K,)
-    is_free = free_slot >= 0
-    has_d = np.isfinite(obs.ur)
-    n_par = 6 * n_free + 3 * n_pts
-
-    def unpack(p):
-        om = np.zeros((len(cam_ids), 3))
-        tau = np.zeros((len(cam_ids), 3))
-        fr = np.array([col_of.get(int(k), -1) for k in cam_ids])
-        f = fr >= 0
-        pp = p[: 6 * n_free].reshape(n_free, 6)
-        om[f] = pp[fr[f], :3]
-        tau[f] = pp[fr[f], 3:]
-        R = so3_exp(om) @ R0 if len(cam_ids) else R0
-        return om, R, t0 + tau, p[6 * n_free :].reshape(n_pts, 3)
-
-    def camera_points(p):
-        om, R, t, X = unpack(p)
-        Xw = X[obs_pt]
-        RX = np.einsum("kij,kj->ki", R[cam_row], Xw)
-        return om, R, RX, RX + t[cam_row]
-
-    def fun(p):
-        _, _, _, X_c = camera_points(p)
-        r, _ = _residuals(X_c, obs, camera, bf)
-        return r.ravel()
-
-    k_obs = len(obs_pt)
-    rows = np.arange(3 * k_obs).reshape(k_obs, 3)
-
-    def jac(p):
-        om, R, RX, X_c = camera_points(p)
-        Jp = _proj_jac(X_c, camera, bf) / obs.sigma[:, None, None]
-        Jp[~has_d, 2, :] = 0.0
-        Jpt = Jp @ R[cam_row]  # (K, 3, 3)
-        r_idx = np.repeat(rows, 3, axis=1).reshape(k_obs, 3, 3)
-        c_pt = 6 * n_free + 3 * obs_pt[:, None, None] + np.arange(3)[None, None, :]
-        data = [Jpt.ravel()]
-        ri = [r_idx.ravel()]
-        ci = [np.broadcast_to(c_pt, (k_obs, 3, 3)).ravel()]
-        if is_free.any():
-            Jl = _left_jacobian(om)[cam_row[is_free]]
-            Jrot = -_skew(RX[is_free]) @ Jl
-            Jf = np.concatenate([Jp[is_free] @ Jrot, Jp[is_free]], axis=2)  # (F, 3, 6)
-            rr = np.repeat(rows[is_free], 6, axis=1).reshape(-1, 3, 6)
-            cc = 6 * free_slot[is_free][:, None, None] + np.arange(6)[None, None, :]
-            data.append(Jf.ravel())
-            ri.append(rr.ravel())
-            ci.append(np.broadcast_to(cc, Jf.shape).ravel())
-        return sp.csr_matrix((np.concatenate(data), (np.concatenate(ri), np.concatenate(ci))), shape=(3 * k_obs, n_par))
-
-    p0 = np.concatenate([np.zeros(6 * n_free), points.ravel()])
-    r0 = fun(p0)
-    cost_before = 0.5 * float(r0 @ r0)
-    if k_obs == 0 or n_par == 0:
-        return BAResult({k: np.asarray(v, float).copy() for k, v in poses.items()}, points.copy(), np.zeros(k_obs, bool), cost_before, cost_before)
-    def weighted(w_obs):
-        w = np.repeat(w_obs, 3)
-        return (lambda p: fun(p) * w), (lambda p: sp.diags(w) @ jac(p))
-
-    # Round 1: Huber cost by iteratively re-weighted least squares, the weight of an
-    # observation sqrt(rho'(chi^2)) fixed from the residuals at the start (delta^2 = 7.815, as
-    # g2o's robust kernel in ORB-SLAM2). Round 2: chi^2 outliers dropped, plain least squares.
-    _, _, _, X_c = camera_points(p0)
-    chi2, _ = observation_chi2(X_c, obs, camera, bf)
-    delta = np.sqrt(CHI2_3DOF)
-    w1 = np.sqrt(np.where(chi2 <= delta**2, 1.0, delta / np.sqrt(np.maximum(chi2, 1e-12))))
-    f1, j1 = weighted(w1)
-    # x_scale="jac" scales the columns (a Jacobi preconditioner for LSMR); LSMR stops after
-    # lsmr_iterations inner steps: an inexact step is enough inside the trust region.
-    opts = dict(method="trf", tr_solver="lsmr", x_scale="jac", tr_options={"maxiter": lsmr_iterations})
-    res = least_squares(f1, p0, jac=j1, max_nfev=max_nfev, **opts)
-    if second_round:
-        _, _, _, X_c = camera_points(res.x)
-        _, bad = observation_chi2(X_c, obs, camera, bf)
-        f2, j2 = weighted((~bad).astype(float))
-        res = least_squares(f2, res.x, jac=j2, max_nfev=max_nfev, **opts)
-    om, R, t, X = unpack(res.x)
+    pb, cam_ids = _ba_problem(poses, fixed, points, obs_cam, obs_pt, obs, camera, bf)
+    k_obs = len(pb.pt)
+    everything = np.ones(k_obs)
+    cost_before = 0.5 * pb.cost(everything, None)
+    iterations = 0
+    if k_obs and (len(pb.free_cam) or len(pb.X)):
+        iterations = _lm_ba(pb, everything, HUBER_DELTA2, max_iterations)
+        if second_round:
+            _, bad = observation_chi2(pb.camera_points()[1], obs, camera, bf)
+            iterations += _lm_ba(pb, (~bad).astype(float), None, max_iterations)
     out = {}
     for i, k in enumerate(cam_ids):
         T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R[i], t[i]
+        T[:3, :3], T[:3, 3] = pb.R[i], pb.t[i]
         out[int(k)] = T
-    _, _, _, X_c = camera_points(res.x)
-    _, outlier = observation_chi2(X_c, obs, camera, bf)
-    r1 = fun(res.x)
-    return BAResult(out, X.copy(), outlier, cost_before, 0.5 * float(r1 @ r1))
+    _, outlier = observation_chi2(pb.camera_points()[1], obs, camera, bf)
+    return BAResult(out, pb.X.copy(), outlier, cost_before, 0.5 * pb.cost(everything, None), iterations)

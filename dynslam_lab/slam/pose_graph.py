@@ -19,11 +19,20 @@ loop keyframe is held fixed (gauge). ORB-SLAM2 runs 20 Levenberg-Marquardt itera
 Afterwards every map point moves with the keyframe that created it (ORB-SLAM2's reference
 keyframe): ``X_new = T_w_r^new (T_w_r^old)^-1 X_old``.
 
-Our reading: the poses are parametrised by a small update around the initial guess,
-``R_k = Exp(dw_k) R_k^0, t_k = t_k^0 + dt_k``; residuals of all edges are computed at once
-(batched rotations), and ``scipy.optimize.least_squares`` (trust region) gets the sparsity of
-the Jacobian (each 6-row residual depends on the 12 parameters of its two poses only), so the
-finite-difference Jacobian costs a few residual evaluations per iteration.
+Our reading: the poses are stepped around the current estimate, ``R_k <- Exp(dw_k) R_k``,
+``t_k <- t_k + dt_k``, and the problem is solved by Levenberg-Marquardt on the block-sparse normal
+equations with the analytic Jacobian of each edge. With ``R_e = Z_R^T R_i^T R_j`` and
+``t_e = Z_R^T (R_i^T (t_j - t_i) - Z_t)``, the residual ``r = (log(R_e), t_e)`` has::
+
+    d log(R_e) / d dw_j =  J_r^-1(phi) R_j^T        d log(R_e) / d dw_i = -J_r^-1(phi) R_j^T
+    d t_e / d dt_j      =  Z_R^T R_i^T              d t_e / d dt_i      = -Z_R^T R_i^T
+    d t_e / d dw_i      =  Z_R^T R_i^T [t_j - t_i]_x                  (d t_e / d dw_j = 0)
+
+with ``phi = log(R_e)`` and ``J_r^-1`` the inverse right Jacobian of SO(3). Each edge touches the 12
+parameters of its two poses, so ``H = J^T W J`` is block-sparse (``6 x 6`` blocks on the diagonal
+and at every edge); it is built as a scipy sparse matrix and solved by Cholesky (or sparse LU for
+thousands of keyframes). A robust loss (``PoseGraphConfig.loss``) re-weights each edge by
+``rho'(||r_e||^2)`` (scipy's loss functions with scale 1, applied to the edge's squared norm).
 """
 
 from __future__ import annotations
@@ -31,9 +40,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
+
+from .optimize import solve_spd
 
 __all__ = ["PoseGraphConfig", "PoseGraphResult", "optimize_pose_graph", "edge_residuals", "correct_points"]
 
@@ -42,10 +52,10 @@ __all__ = ["PoseGraphConfig", "PoseGraphResult", "optimize_pose_graph", "edge_re
 class PoseGraphConfig:
     """Parameters of essential graph optimisation (ORB-SLAM2 ``OptimizeEssentialGraph``)."""
 
-    max_iterations: int = 20  # solver iterations; ORB-SLAM2: 20 Levenberg-Marquardt iterations
+    max_iterations: int = 20  # Levenberg-Marquardt iterations at most; ORB-SLAM2: 20
     min_covisibility_weight: int = 100  # shared map points for a covisibility edge; ORB-SLAM2 minFeat: 100
     rotation_weight: float = 1.0  # weight of the rotation residual (rad vs m; ours, ORB-SLAM2 uses identity)
-    loss: str = "linear"  # scipy robust loss; ORB-SLAM2 uses none here (a robust loss would mute the loop edge)
+    loss: str = "linear"  # robust loss on an edge's squared residual (scipy's names); ORB-SLAM2 uses none here (a robust loss would mute the loop edge)
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -60,7 +70,8 @@ class PoseGraphConfig:
 
 @dataclass(frozen=True)
 class PoseGraphResult:
-    """Optimised poses ``(K, 4, 4)`` T_w_c, the cost before and after, and the solver's evaluations."""
+    """Optimised poses ``(K, 4, 4)`` T_w_c, the cost ``0.5 sum w rho(||r||^2)`` before and after, and the
+    Levenberg-Marquardt iterations run (``n_evaluations``)."""
 
     poses: np.ndarray
     initial_cost: float
@@ -72,6 +83,41 @@ def _apply_update(R0: np.ndarray, t0: np.ndarray, x: np.ndarray) -> tuple[np.nda
     d = x.reshape(-1, 6)
     R = Rotation.from_rotvec(d[:, :3]).as_matrix() @ R0
     return R, t0 + d[:, 3:]
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``(E, 3)`` -> ``(E, 3, 3)`` cross-product matrices."""
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
+def _inv_right_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Inverse right Jacobian of SO(3) ``(E, 3)`` -> ``(E, 3, 3)``:
+    ``I + [phi]_x / 2 + (1 / th^2 - (1 + cos th) / (2 th sin th)) [phi]_x^2``."""
+    th = np.linalg.norm(phi, axis=1)[:, None, None]
+    W = _skew(phi)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0, 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths)))
+    return np.eye(3) + 0.5 * W + c * (W @ W)
+
+
+_LOSS_WEIGHT = {  # rho'(z) of scipy's losses (scale 1), z = squared norm of an edge's residual
+    "linear": lambda z: np.ones_like(z),
+    "soft_l1": lambda z: 1.0 / np.sqrt(1.0 + z),
+    "huber": lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0))),
+    "cauchy": lambda z: 1.0 / (1.0 + z),
+    "arctan": lambda z: 1.0 / (1.0 + z**2),
+}
+_LOSS = {  # rho(z)
+    "linear": lambda z: z,
+    "soft_l1": lambda z: 2.0 * (np.sqrt(1.0 + z) - 1.0),
+    "huber": lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(np.maximum(z, 1.0)) - 1.0),
+    "cauchy": np.log1p,
+    "arctan": np.arctan,
+}
 
 
 def edge_residuals(
@@ -146,43 +192,79 @@ def optimize_pose_graph(
     free = np.flatnonzero(~fixed_mask)
     if len(edges) == 0 or len(free) == 0:
         return PoseGraphResult(T.copy(), 0.0, 0.0, 0)
+    cost0, sol = _lm_pose_graph(R0, t0, free, edges, Z, sqrt_w, config)
+    out = np.tile(np.eye(4), (K, 1, 1))
+    out[:, :3, :3], out[:, :3, 3] = sol[0], sol[1]
+    return PoseGraphResult(out, cost0, sol[2], sol[3])
+
+
+def _edge_jacobian(R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarray, r: np.ndarray,
+                   rotation_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unweighted Jacobian blocks ``(E, 6, 6)`` of each edge's residual in the steps of its poses
+    ``i`` and ``j`` (module docstring); ``r (E, 6)`` the unweighted residuals."""
+    i, j = edges[:, 0], edges[:, 1]
+    ZR_T = np.swapaxes(Z[:, :3, :3], 1, 2)
+    A = ZR_T @ np.swapaxes(R[i], 1, 2)  # Z_R^T R_i^T
+    Jr_inv_Rj = _inv_right_jacobian(r[:, :3] / rotation_weight) @ np.swapaxes(R[j], 1, 2)
+    Ji = np.zeros((len(edges), 6, 6))
+    Jj = np.zeros((len(edges), 6, 6))
+    Ji[:, :3, :3] = -rotation_weight * Jr_inv_Rj
+    Jj[:, :3, :3] = rotation_weight * Jr_inv_Rj
+    Ji[:, 3:, :3] = A @ _skew(t[j] - t[i])
+    Ji[:, 3:, 3:] = -A
+    Jj[:, 3:, 3:] = A
+    return Ji, Jj
+
+
+def _lm_pose_graph(R: np.ndarray, t: np.ndarray, free: np.ndarray, edges: np.ndarray, Z: np.ndarray,
+                   sqrt_w: np.ndarray, config: PoseGraphConfig):
+    """Levenberg-Marquardt over the free poses; returns ``(initial cost, (R, t, final cost, iterations))``
+    with ``cost = 0.5 sum w rho(||r_e||^2)``."""
+    K = len(R)
     col_of = np.full(K, -1, np.int64)
     col_of[free] = np.arange(len(free))
+    loss, dloss = _LOSS[config.loss], _LOSS_WEIGHT[config.loss]
+    n = 6 * len(free)
 
-    def fun(x: np.ndarray) -> np.ndarray:
-        full = np.zeros((K, 6))
-        full[free] = x.reshape(-1, 6)
-        R, t = _apply_update(R0, t0, full)
-        return edge_residuals(R, t, edges, Z, sqrt_w, config.rotation_weight).ravel()
+    def evaluate(R, t):
+        r = edge_residuals(R, t, edges, Z, np.ones(len(edges)), config.rotation_weight)
+        z = sqrt_w**2 * np.einsum("ij,ij->i", r, r)
+        return 0.5 * float(loss(z).sum()), r, z
 
-    # Jacobian sparsity: rows 6e..6e+5 depend on the 6 parameters of each free end of edge e.
-    sparsity = lil_matrix((6 * len(edges), 6 * len(free)), dtype=np.int8)
-    rows = (6 * np.arange(len(edges)))[:, None] + np.arange(6)[None, :]
-    for end in (0, 1):
-        c = col_of[edges[:, end]]
-        ok = c >= 0
-        rr = np.repeat(rows[ok], 6, axis=1)  # (e, 36)
-        cc = np.tile(6 * c[ok][:, None] + np.arange(6)[None, :], (1, 6))
-        sparsity[rr.ravel(), cc.ravel()] = 1
-    x0 = np.zeros(6 * len(free))
-    r0 = fun(x0)
-    sol = least_squares(
-        fun,
-        x0,
-        jac_sparsity=sparsity.tocsr(),
-        method="trf",
-        loss=config.loss,
-        max_nfev=config.max_iterations,  # trust-region steps (each one residual evaluation)
-        x_scale="jac",
-        tr_solver="lsmr",
-    )
-    full = np.zeros((K, 6))
-    full[free] = sol.x.reshape(-1, 6)
-    R, t = _apply_update(R0, t0, full)
-    out = np.tile(np.eye(4), (K, 1, 1))
-    out[:, :3, :3] = R
-    out[:, :3, 3] = t
-    return PoseGraphResult(out, 0.5 * float(r0 @ r0), 0.5 * float(sol.fun @ sol.fun), int(sol.nfev))
+    cost, r, z = evaluate(R, t)
+    cost0, lam, it = cost, 1e-4, 0
+    for it in range(1, config.max_iterations + 1):
+        w = sqrt_w**2 * dloss(z)  # IRLS weight of each edge
+        Ji, Jj = _edge_jacobian(R, t, edges, Z, r, config.rotation_weight)
+        blocks, rows, cols = [], [], []
+        for end, J in ((0, Ji), (1, Jj)):
+            c = col_of[edges[:, end]]
+            ok = c >= 0
+            blocks.append(J[ok] * np.sqrt(w[ok])[:, None, None])
+            rows.append(np.broadcast_to((6 * np.flatnonzero(ok))[:, None, None] + np.arange(6)[:, None], J[ok].shape))
+            cols.append(np.broadcast_to(6 * c[ok][:, None, None] + np.arange(6), J[ok].shape))
+        Jw = sp.csr_matrix((np.concatenate([b.ravel() for b in blocks]),
+                            (np.concatenate([x.ravel() for x in rows]), np.concatenate([x.ravel() for x in cols]))),
+                           shape=(6 * len(edges), n))
+        H = (Jw.T @ Jw).tocsr()
+        g = Jw.T @ (r * np.sqrt(w)[:, None]).ravel()
+        diag = H.diagonal()
+        while True:
+            dx = solve_spd(H + sp.diags(lam * diag + 1e-12), -g)
+            full = np.zeros((K, 6))
+            full[free] = dx.reshape(-1, 6)
+            R_new, t_new = _apply_update(R, t, full)
+            new, r_new, z_new = evaluate(R_new, t_new)
+            if new <= cost or lam > 1e8:
+                break
+            lam *= 10.0
+        if new > cost:  # no step lowers the cost: converged
+            break
+        done = cost - new <= 1e-10 * max(cost, 1e-300) or np.abs(dx).max() < 1e-12
+        R, t, cost, r, z, lam = R_new, t_new, new, r_new, z_new, max(lam / 10.0, 1e-12)
+        if done:
+            break
+    return cost0, (R, t, cost, it)
 
 
 def correct_points(points_w: np.ndarray, ref_index: np.ndarray, T_old: np.ndarray, T_new: np.ndarray) -> np.ndarray:

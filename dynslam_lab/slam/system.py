@@ -253,7 +253,7 @@ class System:
         t["track"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None and res.method != "initialization":
             t0 = time.perf_counter()
-            res.local_mapping = self.mapper.process(kf, new_pts)
+            res.local_mapping = self.mapper.process(kf, new_pts, capped=self.tracker.in_bad_stretch(sf.index))
             t["local_mapping"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None:
             res.is_keyframe, res.keyframe_id = True, kf.id

@@ -45,13 +45,18 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
-from ..geometry.se3 import nearest_rotation, se3_inv, transform_points
+from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, transform_points
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
 from .optimize import Observations, optimize_pose
 
-__all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates"]
+__all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pose_distance"]
+
+
+def pose_distance(T: np.ndarray) -> tuple[float, float]:
+    """Size of a pose difference ``T (4, 4)``: translation (m) and rotation angle (deg)."""
+    return float(np.linalg.norm(T[:3, 3])), float(rotation_angle_deg(T[:3, :3]))
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,22 @@ class TrackingConfig:
     kf_close_tracked: int = 100  # fewer tracked close points than this ...; ORB-SLAM2: 100
     kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
+    suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
+    suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
+    flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
+    flood_window: int = 6  # frames; ours
+    flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+
+    def __post_init__(self) -> None:
+        for name in ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "suspect_translation",
+                     "suspect_rotation_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ValueError(f"TrackingConfig needs 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        for name in ("flood_keyframes", "flood_window", "flood_min_gap", "kf_max_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
 
 
 class TrackState:
@@ -145,6 +166,11 @@ class Tracker:
         self.database = None  # KeyframeDatabase of the keyframes' BoW vectors
         self.vocabulary = None  # the Vocabulary those vectors come from
         self.last_reloc_candidates: list[int] = []  # keyframes tried by the last relocalisation
+        # Graceful failure (ours): the constant-velocity prediction of the frame being tracked, how far
+        # the tracked pose landed from it, and the recent frames that asked for a keyframe.
+        self.predicted_T_c_w: np.ndarray | None = None
+        self.motion_deviation = (0.0, 0.0)  # (m, deg) from the prediction; zeros without one
+        self.kf_demand_frames: list[int] = []
 
     # -------------------------------------------------------------- helpers
     def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
@@ -169,13 +195,21 @@ class Tracker:
     def _available(self, frame: SlamFrame) -> np.ndarray:
         return frame.static & (frame.map_point_ids < 0)
 
+    def predict_pose(self) -> np.ndarray | None:
+        """The constant-velocity prediction ``T_c_w = V T_c_w^last`` for the next frame (``V`` the last
+        frame-to-frame motion in the camera frame, ``T_c_w^last (T_c_w^before)^-1``), or None."""
+        if self.velocity is None or self.last is None or self.last.T_w_c is None:
+            return None
+        return self.velocity @ se3_inv(self.last.T_w_c)
+
     # --------------------------------------------------------------- stages
     def track_motion_model(self, frame: SlamFrame) -> bool:
         """Constant-velocity prediction, projection matching of the last frame's points, refinement."""
         last = self.last
         if last is None or self.velocity is None or last.T_w_c is None:
             return False
-        T_pred = self.velocity @ se3_inv(last.T_w_c)
+        T_pred = self.predict_pose()
+        self.predicted_T_c_w = T_pred
         lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
         pids = last.map_point_ids[lidx]
         alive = self.map.alive[pids]
@@ -341,6 +375,8 @@ class Tracker:
         cfg = self.cfg
         ok = False
         self.method = ""
+        self.predicted_T_c_w = None
+        self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
             if self.velocity is not None and self.track_motion_model(frame):
                 ok, self.method = True, "motion_model"
@@ -360,6 +396,8 @@ class Tracker:
             self.n_inliers = int(frame.matched().sum()) if ok else 0
             state = TrackState.RELOCALIZED if ok else TrackState.LOST
         if ok:
+            if self.predicted_T_c_w is not None:
+                self.motion_deviation = pose_distance(self.predicted_T_c_w @ frame.T_w_c)
             if self.last is not None and self.last.T_w_c is not None and frame.index - self.last.index == 1:
                 V = se3_inv(frame.T_w_c) @ self.last.T_w_c
                 V[:3, :3] = nearest_rotation(V[:3, :3])
@@ -374,8 +412,35 @@ class Tracker:
         self.state = state
         return state
 
+    @property
+    def suspect(self) -> bool:
+        """The last tracked pose landed implausibly far from the constant-velocity prediction (a camera
+        does not accelerate by centimetres or degrees within a frame; tracking that latched onto a
+        moving object does). Ours, for graceful failure (issue: failure is expensive)."""
+        dt, dr = self.motion_deviation
+        return dt > self.cfg.suspect_translation or dr > self.cfg.suspect_rotation_deg
+
+    def in_bad_stretch(self, frame_index: int) -> bool:
+        """At least ``flood_keyframes`` of the last ``flood_window`` frames asked for a keyframe: the
+        keyframe flood of a tracker following a mover (each new keyframe's points move away at once).
+        Ours, for graceful failure."""
+        return sum(frame_index - f < self.cfg.flood_window for f in self.kf_demand_frames) >= self.cfg.flood_keyframes
+
     def need_keyframe(self, frame: SlamFrame) -> bool:
-        """ORB-SLAM2 ``NeedNewKeyFrame`` for RGB-D with local mapping always idle."""
+        """ORB-SLAM2 ``NeedNewKeyFrame`` for RGB-D with local mapping always idle, with our guards for
+        graceful failure: no keyframe on a :attr:`suspect` pose, and during a bad stretch
+        (:meth:`in_bad_stretch`) at least ``flood_min_gap`` frames between keyframes."""
+        need = self._need_keyframe(frame)
+        if need:
+            self.kf_demand_frames = [f for f in self.kf_demand_frames if frame.index - f < self.cfg.flood_window]
+            self.kf_demand_frames.append(frame.index)
+            if self.suspect:
+                return False
+            if self.in_bad_stretch(frame.index) and frame.index - self.last_kf_frame < self.cfg.flood_min_gap:
+                return False
+        return need
+
+    def _need_keyframe(self, frame: SlamFrame) -> bool:
         cfg = self.cfg
         if frame.T_w_c is None or self.ref_kf is None:
             return False

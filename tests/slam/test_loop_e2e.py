@@ -116,7 +116,7 @@ def test_loop_closed_once_at_the_revisit_and_ate_drops(loop_seq, with_loop, with
     assert end_loop[0] < 0.3 * end_plain[0] and end_loop[0] < 0.003
 
 
-@pytest.mark.parametrize("preset, min_queries", [("walking_xyz", 50), ("sitting_xyz", 5)])
+@pytest.mark.parametrize("preset, min_queries", [("walking_xyz", 20), ("sitting_xyz", 5)])  # walking: 31 since the keyframe flood is capped (docs/tracking.md)
 def test_no_loop_on_sequences_that_do_not_come_back(preset, min_queries):
     """No dynamic filter: in ``walking_xyz`` two people walk through the view, their keypoints go
     into the map and the bag-of-words vectors and the map drifts with them (ATE > 0.5 m, many
