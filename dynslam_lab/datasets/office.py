@@ -15,11 +15,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from . import textures as tx
 from .people import PersonLook, Sitter, SlidingObject, Walker, heading_rotation
 from .shapes import _FACE_OFFSET, Shape, pose, rot_x, rot_z, shape_corners
 
 __all__ = ["ROOM_MIN", "ROOM_MAX", "VIEW_EYE", "VIEW_TARGET", "LAMP", "FILL_LIGHTS", "AMBIENT", "PERSON",
-           "TextureBank", "OfficeScene", "build_office"]
+           "Lighting", "OFFICE_LIGHTING", "TextureBank", "OfficeScene", "build_office", "person_look"]
 
 # World frame: z up, floor at z = 0; the room spans x in [-3, 3], y in [-2.5, 3.2], z in [0, 2.7] (m).
 ROOM_MIN = np.array([-3.0, -2.5, 0.0])
@@ -34,6 +35,38 @@ FILL_LIGHTS = ((np.array([-0.5, -0.6, 0.62]), 0.3), (np.array([0.7, 0.3, 0.65]),
 AMBIENT = 0.36
 
 PERSON = "person"
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """The lights of a scene, fixed in the room (Lambertian shading in ``synthetic._shade``).
+
+    Attributes
+    ----------
+    lamp : position of the point lamp (m, world); its light fades as ``1 / (1 + d^2 / 9 m^2)``.
+    lamp_power : the lamp's intensity (1 = full white on a surface facing it at close range).
+    fills : directional fill lights ``((dx, dy, dz), power)``, the direction pointing towards the light.
+    ambient : the ambient term added everywhere.
+    """
+
+    lamp: tuple[float, float, float]
+    lamp_power: float
+    fills: tuple[tuple[tuple[float, float, float], float], ...]
+    ambient: float
+
+    def __post_init__(self) -> None:
+        if len(self.lamp) != 3:
+            raise ValueError(f"Lighting.lamp must be a 3-D position (m), got {self.lamp!r}")
+        if self.lamp_power < 0 or self.ambient < 0 or any(p < 0 for _, p in self.fills):
+            raise ValueError(f"Lighting: powers and ambient must be >= 0, got lamp_power={self.lamp_power}, "
+                             f"ambient={self.ambient}, fills={self.fills}")
+        if any(len(d) != 3 or not np.any(d) for d, _ in self.fills):
+            raise ValueError(f"Lighting.fills: each direction must be a non-zero 3-vector, got {self.fills!r}")
+
+
+#: The office's lights (the constants above as one :class:`Lighting`).
+OFFICE_LIGHTING = Lighting(tuple(float(v) for v in LAMP[0]), LAMP[1],
+                           tuple((tuple(float(v) for v in d), p) for d, p in FILL_LIGHTS), AMBIENT)
 
 
 class TextureBank:
@@ -56,14 +89,16 @@ class TextureBank:
 class OfficeScene:
     """The office: static parts, movers, instances and the texture bank.
 
-    Build it with :func:`build_office`. ``parts(t)`` lists every shape with its pose at time
-    ``t`` (s); ``instances`` maps id -> ``(COCO class, motion)``.
+    Build it with :func:`build_office` (the stress rooms of :mod:`~dynslam_lab.datasets.stress` use
+    the same container). ``parts(t)`` lists every shape with its pose at time ``t`` (s);
+    ``instances`` maps id -> ``(class, motion)``; ``lighting`` holds the lights.
     """
 
     bank: TextureBank
     static: list[tuple[Shape, np.ndarray]]
     movers: list
     instances: dict[int, tuple[str, str]] = field(default_factory=dict)
+    lighting: Lighting = OFFICE_LIGHTING
     _posed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def parts(self, t: float) -> list[tuple[Shape, np.ndarray]]:
@@ -125,14 +160,24 @@ def _corners(shape: Shape) -> np.ndarray:
     return c
 
 
+def person_look(bank: TextureBank, rng: np.random.Generator, height: float = 1.0) -> PersonLook:
+    """A person's clothes, head and skin: five new textures in ``bank`` drawn from ``rng``."""
+    return PersonLook(
+        shirt=bank.add(tx.fabric_texture(256, 256, rng)),
+        trousers=bank.add(tx.denim_texture(256, 256, rng)),
+        head=bank.add(tx.head_texture(256, 512, rng)),
+        skin=bank.add(tx.skin_texture(128, 128, rng)),
+        shoes=bank.add(tx.metal_texture(64, 128, rng, color=(0.08, 0.06, 0.05))),
+        height=height,
+    )
+
+
 def _wall_texture(w_m: float, h_m: float, density: float, rng: np.random.Generator, items: list[tuple[str, float, float, float, float]],
                   color=(0.8, 0.78, 0.72)) -> np.ndarray:
     """A plaster wall ``w_m x h_m`` metres with posters, boards and notices.
 
     ``items`` are ``(kind, x, y, w, h)`` in metres from the wall's top-left corner (seen from inside).
     """
-    from . import textures as tx
-
     W, H = tx.aligned(w_m * density), tx.aligned(h_m * density)
     img = tx.plaster_texture(H, W, rng, color)
     makers = {"poster": tx.poster, "whiteboard": tx.whiteboard, "paper": tx.paper_texture, "screen": tx.screen_texture,
@@ -169,8 +214,6 @@ def build_office(scene: str, rng: np.random.Generator) -> OfficeScene:
 
     Instance ids: people first (1, 2), then the furniture; 0 is the room (walls, floor, ceiling, shelves).
     """
-    from . import textures as tx
-
     if scene not in ("walking", "sitting", "static", "walking_one"):
         raise ValueError(f"unknown scene kind {scene!r}; choose walking, sitting, static or walking_one")
     bank = TextureBank()
@@ -333,14 +376,7 @@ def build_office(scene: str, rng: np.random.Generator) -> OfficeScene:
 
     # ------------------------------------------------------------------- people
     def look(height: float) -> PersonLook:
-        return PersonLook(
-            shirt=bank.add(tx.fabric_texture(256, 256, rng)),
-            trousers=bank.add(tx.denim_texture(256, 256, rng)),
-            head=bank.add(tx.head_texture(256, 512, rng)),
-            skin=bank.add(tx.skin_texture(128, 128, rng)),
-            shoes=bank.add(tx.metal_texture(64, 128, rng, color=(0.08, 0.06, 0.05))),
-            height=height,
-        )
+        return person_look(bank, rng, height)
 
     if scene == "walking_one":  # the loop's walker keeps behind the desk, clear of the camera's circle
         instances[1] = (PERSON, "walking")

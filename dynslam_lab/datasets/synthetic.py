@@ -15,7 +15,10 @@ shadow, glossy, dark and far surfaces, random dropouts).
 Sequences are written in the TUM RGB-D layout (``rgb/``, ``depth/``, ``rgb.txt``,
 ``depth.txt``, ``groundtruth.txt``) plus ``camera.json``, instance masks ``masks/``,
 ``instances.json`` and ``moving.txt``, so :class:`~dynslam_lab.datasets.tum.TumSequence`
-reads them unchanged. See ``docs/synthetic.md``.
+reads them unchanged, plus ``coverage.csv`` (per frame, the image fraction the movers cover, their
+distance and speed). Besides the office presets (:data:`PRESETS`) the renderer draws the stress
+scenes of :mod:`~dynslam_lab.datasets.stress` (other rooms, non-COCO movers; a
+:class:`~dynslam_lab.datasets.stress.StressPreset` goes wherever a preset goes). See ``docs/synthetic.md``.
 """
 
 from __future__ import annotations
@@ -35,15 +38,24 @@ import numpy as np
 from ..camera import CAMERA_PRESETS, PinholeCamera, save_camera_json
 from ..geometry.se3 import pose_to_tum
 from . import scene as sc
-from .camera_paths import camera_pose, frame_times
+from . import stress
+from .camera_paths import OFFICE_RIG, camera_pose, frame_times
 from .kinect import DepthNoise, disparity_step, kinect_depth, nguyen_sigma
+from .office import OFFICE_LIGHTING, Lighting
 from .raycaster import ray_grid
+from .shapes import shape_corners
+from .stress import StressPreset, random_scene_preset
 from .textures import TextureAtlas, build_atlas, sample_atlas
 
 __all__ = [
     "DepthNoise",
     "ScenePreset",
+    "StressPreset",
+    "random_scene_preset",
     "PRESETS",
+    "preset_names",
+    "preset_from_meta",
+    "read_coverage",
     "RENDER_VERSION",
     "RenderedFrame",
     "SyntheticRenderer",
@@ -62,7 +74,7 @@ __all__ = [
 ]
 
 #: Bump when the output of the renderer changes: part of the cache key.
-RENDER_VERSION = "12"
+RENDER_VERSION = "13"
 #: Colour timestamps start here (s), like the UNIX times of TUM sequences.
 T0 = 1_600_000_000.0
 #: An instance is "moving" in a frame when some point of its surface moved more than this (m).
@@ -127,13 +139,29 @@ def _presets() -> dict[str, ScenePreset]:
 PRESETS: dict[str, ScenePreset] = _presets()
 
 
-def get_preset(preset: str | ScenePreset) -> ScenePreset:
-    """The preset of that name (or the preset itself); clear error for an unknown name."""
-    if isinstance(preset, ScenePreset):
+def get_preset(preset: str | ScenePreset | StressPreset) -> ScenePreset | StressPreset:
+    """The preset of that name (or the preset itself); clear error for an unknown name.
+
+    Names are the office presets (:data:`PRESETS`), the named stress scenes
+    (:data:`~dynslam_lab.datasets.stress.STRESS_PRESETS`) and those with ``_nomovers`` appended (the
+    same stress scene without its movers).
+    """
+    if isinstance(preset, (ScenePreset, StressPreset)):
         return preset
-    if preset not in PRESETS:
-        raise ValueError(f"unknown synthetic preset {preset!r}; choose one of {', '.join(PRESETS)}")
-    return PRESETS[preset]
+    if preset in PRESETS:
+        return PRESETS[preset]
+    named = stress.STRESS_PRESETS
+    if preset in named:
+        return named[preset]
+    base = str(preset).removesuffix("_nomovers")
+    if base != preset and base in named:
+        return named[base].without_movers()
+    raise ValueError(f"unknown synthetic preset {preset!r}; choose one of {', '.join(preset_names())}")
+
+
+def preset_names() -> list[str]:
+    """Every preset name :func:`get_preset` knows (office, then stress scenes; each of the latter also with ``_nomovers``)."""
+    return list(PRESETS) + list(stress.STRESS_PRESETS)
 
 
 # -------------------------------------------------------------------------- renderer
@@ -169,31 +197,49 @@ class SyntheticRenderer:
 
     Parameters
     ----------
-    preset : a preset name or :class:`ScenePreset`.
-    seed : seeds the textures and all sensor noise.
-    n_frames : sequence length (the loop preset's path depends on it); default the preset's.
+    preset : a preset name, a :class:`ScenePreset` or a :class:`~dynslam_lab.datasets.stress.StressPreset`.
+    seed : seeds all sensor noise, and the office's textures (a stress scene's textures come from
+        its preset's own ``seed``).
+    n_frames : sequence length (the loop's path depends on it); default the preset's.
     """
 
-    def __init__(self, preset: str | ScenePreset, seed: int = 0, n_frames: int | None = None) -> None:
+    def __init__(self, preset: str | ScenePreset | StressPreset, seed: int = 0, n_frames: int | None = None) -> None:
         self.preset = get_preset(preset)
         self.seed = int(seed)
         self.n_frames = int(n_frames if n_frames is not None else self.preset.n_frames)
         if self.n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {self.n_frames}")
         self.camera: PinholeCamera = CAMERA_PRESETS[self.preset.camera]
-        self.scene, self.atlas = _build_scene(self.preset.scene, self.seed)
+        if isinstance(self.preset, StressPreset):
+            self.scene, self.atlas = _build_stress(self.preset)
+            self.rig = self.preset.rig
+        else:
+            self.scene, self.atlas = _build_scene(self.preset.scene, self.seed)
+            self.rig = OFFICE_RIG
         _keep_frame_buffers_mapped()
         self.times = frame_times(self.n_frames)
         self.duration = float(self.times[-1])
 
     @property
     def instances(self) -> dict[int, tuple[str, str]]:
-        """Instance id -> ``(COCO class, motion)``."""
+        """Instance id -> ``(class, motion)`` (COCO classes, and non-COCO ones for stress movers)."""
         return dict(self.scene.instances)
 
     def pose(self, t: float) -> np.ndarray:
         """Camera pose ``T_w_c`` at time ``t`` (s)."""
-        return camera_pose(self.preset.motion, t, self.duration)
+        return camera_pose(self.preset.motion, t, self.duration, self.rig)
+
+    def mover_positions(self, t: float) -> dict[int, np.ndarray]:
+        """World position ``(3,)`` (m) of a reference point of each mover at time ``t`` (s): its body origin
+        (a door: its free edge; an office mover: the centre of its bounding box). Its speed is the mover's speed."""
+        out = {}
+        for m in self.scene.movers:
+            if hasattr(m, "reference"):
+                out[m.instance] = np.asarray(m.reference(t), float)
+            else:
+                C = np.concatenate([shape_corners(s) @ T[:3, :3].T + T[:3, 3] for s, T in m.parts(t)])
+                out[m.instance] = 0.5 * (C.min(axis=0) + C.max(axis=0))
+        return out
 
     def moving(self, index: int) -> set[int]:
         """Instances whose surface moved more than 1 mm between frames ``index - 1`` and ``index``."""
@@ -215,7 +261,8 @@ class SyntheticRenderer:
         T = self.pose(t) if T_w_c is None else np.asarray(T_w_c, float)
         parts = self.scene.parts(t if t_scene is None else t_scene)
         rng = np.random.default_rng([self.seed, index, 17])
-        rgb, depth, depth_true, mask, normal = _shade(parts, self.atlas, self.camera, T, self.preset, rng, noise, self.seed)
+        rgb, depth, depth_true, mask, normal = _shade(parts, self.atlas, self.camera, T, self.preset, rng, noise, self.seed,
+                                                      self.scene.lighting)
         return RenderedFrame(index, T0 + t, rgb, depth, depth_true, mask, T, self.moving(index), normal)
 
 
@@ -261,6 +308,23 @@ def _build_scene(scene: str, seed: int) -> tuple[sc.OfficeScene, TextureAtlas]:
     return office, build_atlas(office.bank.images)
 
 
+@lru_cache(maxsize=4)
+def _build_stress_full(preset: StressPreset) -> tuple[sc.OfficeScene, TextureAtlas]:
+    scene = stress.build_stress_scene(preset)
+    return scene, build_atlas(scene.bank.images)
+
+
+def _build_stress(preset: StressPreset) -> tuple[sc.OfficeScene, TextureAtlas]:
+    """A stress scene and its atlas; without movers, the same scene (and atlas) with the movers dropped,
+    so that both versions share every texel."""
+    # the scene does not depend on these (nor on the camera motion, but for a loop's keep-out)
+    full = replace(preset, name="", with_movers=True, n_frames=1, motion="loop" if preset.motion == "loop" else "static")
+    scene, atlas = _build_stress_full(full)
+    if preset.with_movers:
+        return scene, atlas
+    return replace(scene, movers=[], instances={}), atlas
+
+
 _PART_ROWS: dict = {}
 
 
@@ -282,8 +346,8 @@ def _part_tables(parts) -> tuple[np.ndarray, ...]:
             np.array(density, np.float32), np.array(inst, np.int32), np.array(drop, np.float32))
 
 
-def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray, preset: ScenePreset,
-           rng: np.random.Generator, noise: bool, noise_seed: int | None = None):
+def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray, preset: ScenePreset | StressPreset,
+           rng: np.random.Generator, noise: bool, noise_seed: int | None = None, lighting: Lighting = OFFICE_LIGHTING):
     """Ray cast, texture, light and degrade one frame.
 
     Returns ``rgb (H, W, 3) uint8``, ``depth (H, W) float32`` (m, 0 = hole), ``depth_true`` (m),
@@ -327,7 +391,7 @@ def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray,
         cv2.multiply(albedo, cv2.merge([np.take(tint[:, c], pid) for c in range(3)]), dst=albedo)
     # Lambertian shading: a lamp (point light, fading with distance) and fill lights fixed in the room
     R_cw = T_w_c[:3, :3].T
-    Lc = (R_cw @ (sc.LAMP[0] - T_w_c[:3, 3])).astype(np.float32)
+    Lc = (R_cw @ (np.asarray(lighting.lamp, float) - T_w_c[:3, 3])).astype(np.float32)
     vx = rx * z
     np.subtract(Lc[0], vx, out=vx)
     vy = ry * z
@@ -341,12 +405,13 @@ def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray,
     lam += np.multiply(nz, vz, out=tmp)
     np.maximum(lam, 0.0, out=lam)
     lam /= np.sqrt(d2, out=tmp)
-    lam *= f32(sc.LAMP[1])
+    lam *= f32(lighting.lamp_power)
     d2 *= f32(1 / 9.0)
     d2 += 1.0
     light = np.divide(lam, d2, out=lam)
-    light += f32(sc.AMBIENT)  # a + b and b + a are the same in floating point
-    for direction, power in sc.FILL_LIGHTS:
+    light += f32(lighting.ambient)  # a + b and b + a are the same in floating point
+    for direction, power in lighting.fills:
+        direction = np.asarray(direction, float)
         lc = (R_cw @ (direction / np.linalg.norm(direction))).astype(np.float32) * np.float32(power)
         fill = np.multiply(nx, lc[0], out=vx)
         fill += np.multiply(ny, lc[1], out=vy)
@@ -392,7 +457,7 @@ def _shade(parts, atlas: TextureAtlas, camera: PinholeCamera, T_w_c: np.ndarray,
 
 
 def render_frame(
-    preset: str | ScenePreset,
+    preset: str | ScenePreset | StressPreset,
     index: int = 0,
     seed: int = 0,
     n_frames: int | None = None,
@@ -413,7 +478,7 @@ def _fmt(ts: float) -> str:
 
 
 def render_sequence(
-    preset: str | ScenePreset,
+    preset: str | ScenePreset | StressPreset,
     outdir: str | Path,
     n_frames: int | None = None,
     seed: int = 0,
@@ -424,7 +489,9 @@ def render_sequence(
     Writes ``rgb/TS.png``, ``depth/TS.png`` (16-bit, 5000 units/m, 0 = hole), ``masks/TS.png``
     (16-bit instance ids, named like the colour image), ``rgb.txt``, ``depth.txt`` (depth stamps
     2-9 ms off the colour ones), ``groundtruth.txt`` (100 Hz), ``camera.json``,
-    ``instances.json``, ``moving.txt`` and ``synthetic.json`` (the preset and seed).
+    ``instances.json``, ``moving.txt``, ``coverage.csv`` (per frame: the image fraction covered by
+    the instances moving in it and by all movers; per mover its fraction, mean true depth and
+    speed) and ``synthetic.json`` (the preset, seed and the coverage, distance and speed statistics).
     """
     renderer = SyntheticRenderer(preset, seed, n_frames)
     p = renderer.preset
@@ -437,6 +504,8 @@ def render_sequence(
     rgb_lines = [f"# color images of synthetic sequence {p.name} (seed {seed})", "# timestamp filename"]
     depth_lines = [f"# depth maps of synthetic sequence {p.name} (seed {seed})", "# timestamp filename"]
     moving_lines = ["# instances whose surface moved more than 1 mm since the previous colour frame", "# timestamp id id ..."]
+    mover_ids = [i for i, (_, m) in renderer.instances.items() if m != "static"]
+    coverage = _CoverageLog(mover_ids, renderer)
     frames = range(n)
     if progress:
         from tqdm.auto import tqdm
@@ -468,11 +537,13 @@ def render_sequence(
             rgb_lines.append(f"{ts} rgb/{ts}.png")
             depth_lines.append(f"{tsd} depth/{tsd}.png")
             moving_lines.append(" ".join([ts] + [str(k) for k in sorted(f.moving)]))
+            coverage.add(ts, f)
         for fut in pending:
             fut.result()
     (out / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (out / "depth.txt").write_text("\n".join(depth_lines) + "\n")
     (out / "moving.txt").write_text("\n".join(moving_lines) + "\n")
+    (out / "coverage.csv").write_text(coverage.csv())
     # ground truth at 100 Hz, from 0.1 s before the first to 0.1 s after the last colour frame
     ticks = np.arange(-10, int(round(renderer.duration * 100)) + 11)
     gt_t = ticks / 100.0
@@ -484,9 +555,100 @@ def render_sequence(
     save_camera_json(renderer.camera, out / "camera.json")
     inst = {str(i): {"class": c, "motion": m} for i, (c, m) in renderer.instances.items()}
     (out / "instances.json").write_text(json.dumps(inst, indent=1) + "\n")
-    meta = {"preset": asdict(p), "seed": seed, "n_frames": n, "render_version": RENDER_VERSION}
+    meta = {"kind": "stress" if isinstance(p, StressPreset) else "office", "preset": asdict(p), "seed": seed, "n_frames": n,
+            "render_version": RENDER_VERSION, "stats": coverage.stats()}
     (out / "synthetic.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out
+
+
+class _CoverageLog:
+    """Per-frame truth of the movers for ``coverage.csv`` and the statistics in ``synthetic.json``."""
+
+    #: an instance counts as seen in a frame when it covers at least this fraction of the image
+    SEEN = 0.002
+
+    def __init__(self, mover_ids: list[int], renderer: "SyntheticRenderer") -> None:
+        self.ids = sorted(mover_ids)
+        self.renderer = renderer
+        self.rows: list[list[float]] = []
+        self.stamps: list[str] = []
+        self._last: tuple[float, dict] | None = None
+
+    def add(self, ts: str, f: RenderedFrame) -> None:
+        m = f.instance_mask.ravel()
+        n_px = m.size
+        top = max(self.ids + [int(m.max()), 0]) + 1
+        count = np.bincount(m, minlength=top).astype(np.float64)
+        zsum = np.bincount(m, weights=f.depth_true.ravel().astype(np.float64), minlength=top)
+        moving = [i for i in f.moving if i < top]
+        t = float(self.renderer.times[f.index])
+        pos = self.renderer.mover_positions(t)
+        row = [count[moving].sum() / n_px, count[self.ids].sum() / n_px]
+        for i in self.ids:
+            speed = 0.0
+            if self._last is not None and t > self._last[0]:
+                speed = float(np.linalg.norm(pos[i] - self._last[1][i]) / (t - self._last[0]))
+            row += [count[i] / n_px, zsum[i] / count[i] if count[i] > 0 else float("nan"), speed]
+        self._last = (t, pos)
+        self.stamps.append(ts)
+        self.rows.append(row)
+
+    def csv(self) -> str:
+        head = ["timestamp", "moving", "movers"] + [f"{k}_{i}" for i in self.ids for k in ("cover", "depth", "speed")]
+        lines = [",".join(head)]
+        for ts, row in zip(self.stamps, self.rows):
+            vals = [f"{row[0]:.6f}", f"{row[1]:.6f}"]
+            for k in range(len(self.ids)):
+                c, z, v = row[2 + 3 * k : 5 + 3 * k]
+                vals += [f"{c:.6f}", "nan" if np.isnan(z) else f"{z:.4f}", f"{v:.4f}"]
+            lines.append(",".join([ts] + vals))
+        return "\n".join(lines) + "\n"
+
+    def stats(self) -> dict:
+        """Max and mean coverage; per mover: class, motion, max coverage, frames seen, distance (min /
+        median / max of its mean true depth over the frames it is seen in) and top speed."""
+        if not self.rows:
+            return {}
+        R = np.array(self.rows, np.float64)
+        out = {"moving_cover_max": round(float(R[:, 0].max()), 4), "moving_cover_mean": round(float(R[:, 0].mean()), 4),
+               "movers_cover_max": round(float(R[:, 1].max()), 4), "movers_cover_mean": round(float(R[:, 1].mean()), 4),
+               "instances": {}}
+        classes = self.renderer.instances
+        for k, i in enumerate(self.ids):
+            c, z, v = R[:, 2 + 3 * k], R[:, 3 + 3 * k], R[:, 4 + 3 * k]
+            seen = c >= self.SEEN
+            zs = z[seen]
+            out["instances"][str(i)] = {
+                "class": classes[i][0], "motion": classes[i][1], "cover_max": round(float(c.max()), 4), "frames_seen": int(seen.sum()),
+                "depth_min": round(float(zs.min()), 3) if len(zs) else None,
+                "depth_median": round(float(np.median(zs)), 3) if len(zs) else None,
+                "depth_max": round(float(zs.max()), 3) if len(zs) else None,
+                "speed_max": round(float(v.max()), 3),
+            }
+        return out
+
+
+def read_coverage(root: str | Path) -> dict[str, np.ndarray]:
+    """``coverage.csv`` of a rendered sequence as columns: ``timestamp``, ``moving`` and ``movers`` (image
+    fractions), and per mover instance ``ID`` ``cover_ID``, ``depth_ID`` (m, NaN when unseen) and ``speed_ID`` (m/s)."""
+    path = Path(root) / "coverage.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: coverage.csv not found (synthetic sequences rendered since renderer version 13 have one)")
+    lines = path.read_text().splitlines()
+    head = lines[0].split(",")
+    try:
+        data = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:] if ln.strip()], np.float64).reshape(-1, len(head))
+    except ValueError as e:
+        raise ValueError(f"{path}: malformed row ({e})") from None
+    return {h: data[:, k] for k, h in enumerate(head)}
+
+
+def preset_from_meta(meta: dict) -> ScenePreset | StressPreset:
+    """The preset stored in a sequence's ``synthetic.json`` (as a dict), rebuilt."""
+    d = meta["preset"]
+    if meta.get("kind") == "stress":
+        return StressPreset.from_dict(d)
+    return ScenePreset(**{**d, "depth": DepthNoise(**d["depth"])})
 
 
 def moving_instances(root: str | Path) -> list[int]:
@@ -511,7 +673,7 @@ def truth_views(root: str | Path, frames) -> list[tuple]:
     if not meta_path.is_file():
         raise FileNotFoundError(f"{meta_path}: synthetic.json not found (only synthetic sequences have one)")
     meta = json.loads(meta_path.read_text())
-    preset = ScenePreset(**{**meta["preset"], "depth": DepthNoise(**meta["preset"]["depth"])})
+    preset = preset_from_meta(meta)
     renderer = SyntheticRenderer(preset, meta["seed"], meta["n_frames"])
     movers = moving_instances(root)
     seq = TumSequence(root)
@@ -532,7 +694,7 @@ def _cache_root(cache_dir: str | Path | None) -> Path:
     return root / "synthetic"
 
 
-def cache_key(preset: str | ScenePreset, n_frames: int | None = None, seed: int = 0) -> str:
+def cache_key(preset: str | ScenePreset | StressPreset, n_frames: int | None = None, seed: int = 0) -> str:
     """Folder name of a cached sequence: preset, length, seed and a hash of the renderer version and parameters."""
     p = get_preset(preset)
     n = int(n_frames if n_frames is not None else p.n_frames)
@@ -541,7 +703,7 @@ def cache_key(preset: str | ScenePreset, n_frames: int | None = None, seed: int 
 
 
 def synthetic_sequence(
-    preset: str | ScenePreset,
+    preset: str | ScenePreset | StressPreset,
     n_frames: int | None = None,
     seed: int = 0,
     cache_dir: str | Path | None = None,

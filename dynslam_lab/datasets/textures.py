@@ -594,3 +594,113 @@ def paper_texture(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
         fig = poster(h // 4, w // 3, rng)
         paste(img, fig, w // 2, h // 2)
     return img
+
+
+# ---------------------------------------------------------- stress-room materials
+# Surfaces of the stress rooms (:mod:`dynslam_lab.datasets.rooms`) in four families: fine noise,
+# large flat areas, repeated patterns and photographs (:mod:`dynslam_lab.datasets.photos`), and
+# the non-COCO movers (cardboard, painted boards).
+def paint_texture(h: int, w: int, rng: np.random.Generator, color, amplitude: float = 0.03) -> np.ndarray:
+    """Flat paint: a plain colour with soft stains of relative amplitude ``amplitude`` (a weakly
+    textured surface: ORB finds almost nothing on it), ``(h, w, 3)`` float32."""
+    n = fractal_noise(h, w, rng, base_cell=max(h, w) / 3, octaves=3, persistence=0.5)
+    c = np.asarray(color, np.float32)
+    return np.clip(colorize(n, c * (1 - amplitude), c * (1 + amplitude)), 0, 1).astype(np.float32)
+
+
+def granite_texture(h: int, w: int, rng: np.random.Generator, c0, c1) -> np.ndarray:
+    """Fine noise everywhere: granite-like grains of 1-3 texels between colours ``c0`` and ``c1``
+    over a faint mottle; dense, high-contrast, without structure above a few texels."""
+    grains = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 0.7)
+    grains = (grains - grains.min()) / max(float(np.ptp(grains)), 1e-6)
+    mottle = fractal_noise(h, w, rng, base_cell=24, octaves=4, persistence=0.8)
+    v = np.clip(1.6 * (0.75 * grains + 0.25 * mottle) - 0.3, 0, 1)
+    return add_speckle(colorize(v, c0, c1), rng, amount=0.5, scales=(1.0, 2.0), density=0.03)
+
+
+def brick_texture(h: int, w: int, rng: np.random.Generator, brick: tuple[int, int] = (40, 13), mortar: int = 2,
+                  color=(0.62, 0.3, 0.2)) -> np.ndarray:
+    """Bricks in running bond, ``brick = (length, height)`` texels, ``mortar`` texels of pale joint; each
+    brick a slightly different shade with fine grain: a repeated pattern."""
+    bl, bh = brick
+    y = np.arange(h)[:, None]
+    x = np.arange(w)[None, :]
+    row = y // bh
+    xs = x + (row % 2) * (bl // 2)
+    col = xs // bl
+    shade = rng.uniform(0.8, 1.15, (int(row.max()) + 2, int(w // bl) + 3)).astype(np.float32)
+    base = np.asarray(color, np.float32) * shade[row, col][..., None]
+    grain = fractal_noise(h, w, rng, base_cell=8, octaves=3, persistence=0.7)
+    img = base * (0.85 + 0.3 * grain[..., None])
+    joint = ((y % bh) < mortar) | ((xs % bl) < mortar)
+    img[np.broadcast_to(joint, (h, w))] = (0.72, 0.7, 0.66)
+    return np.clip(img, 0, 1).astype(np.float32)
+
+
+def tile_texture(h: int, w: int, rng: np.random.Generator, tile: int = 48, grout: int = 2, colors=((0.85, 0.85, 0.82),),
+                 checker: bool = False) -> np.ndarray:
+    """Square tiles of ``tile`` texels with ``grout`` texels of dark joint; one colour (``colors[0]``) or
+    a checkerboard of two (``checker``); a repeated pattern with almost no texture inside a tile."""
+    y = np.arange(h)[:, None]
+    x = np.arange(w)[None, :]
+    c0 = np.asarray(colors[0], np.float32)
+    c1 = np.asarray(colors[-1], np.float32)
+    if checker:
+        odd = ((y // tile + x // tile) % 2).astype(bool)
+        img = np.where(odd[..., None], c1, c0).astype(np.float32)
+    else:
+        img = np.broadcast_to(c0, (h, w, 3)).astype(np.float32)
+    img = img * (0.96 + 0.08 * fractal_noise(h, w, rng, base_cell=tile, octaves=2)[..., None])
+    joint = ((y % tile) < grout) | ((x % tile) < grout)
+    img[np.broadcast_to(joint, (h, w))] *= 0.45
+    return np.clip(img, 0, 1).astype(np.float32)
+
+
+def wallpaper_texture(h: int, w: int, rng: np.random.Generator, period: int = 64) -> np.ndarray:
+    """Wallpaper: one motif of random shapes drawn in a ``period`` x ``period`` cell and repeated
+    exactly (every copy has the same descriptors: a stress for matching), on a two-colour ground."""
+    ground = _rand_color(rng, 0.55, 0.9)
+    ink = _rand_color(rng, 0.05, 0.45)
+    cell = np.broadcast_to(ground, (period, period, 3)).astype(np.float32).copy()
+    for _ in range(int(rng.integers(3, 7))):
+        c = (int(rng.integers(period)), int(rng.integers(period)))
+        r = int(rng.integers(period // 12 + 1, period // 4 + 2))
+        col = tuple(float(v) for v in (ink if rng.random() < 0.7 else _rand_color(rng, 0.1, 0.9)))
+        kind = int(rng.integers(3))
+        if kind == 0:
+            cv2.circle(cell, c, r, col, -1, cv2.LINE_AA)
+        elif kind == 1:
+            cv2.rectangle(cell, (c[0] - r, c[1] - r // 2), (c[0] + r, c[1] + r // 2), col, -1)
+        else:
+            pts = (np.array(c) + rng.integers(-r, r + 1, (3, 2))).astype(np.int32)
+            cv2.fillPoly(cell, [pts], col, cv2.LINE_AA)
+    reps = (-(-h // period), -(-w // period), 1)
+    return np.tile(cell, reps)[:h, :w].astype(np.float32)
+
+
+def stripes_texture(h: int, w: int, rng: np.random.Generator, period: int = 24) -> np.ndarray:
+    """Bold stripes of two random colours at a random angle (a painted board or a shirt-less mover)."""
+    c0, c1 = _rand_color(rng, 0.05, 0.4), _rand_color(rng, 0.6, 0.95)
+    a = rng.uniform(0, np.pi)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    v = (np.sin(2 * np.pi * (x * np.cos(a) + y * np.sin(a)) / period) > 0).astype(np.float32)
+    img = colorize(cv2.GaussianBlur(v, (0, 0), 0.8), c0, c1)
+    return add_speckle(img, rng, amount=0.25)
+
+
+def cardboard_texture(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """Cardboard: brown fibre noise, a band of packing tape, a printed label with text and arrows."""
+    base = np.array([0.62, 0.46, 0.3], np.float32) * rng.uniform(0.8, 1.1)
+    n = fractal_noise(h, w, rng, base_cell=max(h, w) / 4, octaves=6, persistence=0.6)
+    img = colorize(n, base * 0.85, np.minimum(base * 1.12, 1))
+    ty = int(rng.uniform(0.35, 0.55) * h)
+    img[ty : ty + max(4, h // 10)] = img[ty : ty + max(4, h // 10)] * 0.7 + 0.3 * np.array([0.8, 0.72, 0.55], np.float32)
+    lx, ly = int(rng.uniform(0.05, 0.5) * w), int(rng.uniform(0.05, 0.25) * h)
+    lw, lh = int(w * rng.uniform(0.25, 0.4)), int(h * rng.uniform(0.15, 0.25))
+    cv2.rectangle(img, (lx, ly), (lx + lw, ly + lh), (0.93, 0.93, 0.9), -1)
+    add_text(img, rng, (lx + 3, ly, lx + lw - 3, ly + lh), line_height=max(6, lh // 4), fill=0.9)
+    for k in range(2):  # "this side up" arrows
+        ax = int(w * (0.7 + 0.12 * k))
+        cv2.arrowedLine(img, (ax, int(h * 0.9)), (ax, int(h * 0.65)), (0.1, 0.1, 0.1), max(2, w // 80), cv2.LINE_AA,
+                        tipLength=0.3)
+    return add_speckle(img, rng, amount=0.3)
