@@ -49,6 +49,8 @@ class ScreeningContext:
     map_descriptors : ``(M, 32)`` uint8 ORB descriptors of the map points.
     descriptors : ``(N, 32)`` uint8 descriptors of this frame's keypoints (same order as ``uv``).
     octave : ``(N,)`` pyramid level of each keypoint.
+    scale_factor : ORB pyramid scale between levels (``OrbConfig.scale_factor``): a keypoint of level
+        ``o`` is located to about ``scale_factor ** o`` pixels.
     """
 
     T_c_w_pred: np.ndarray | None = None
@@ -58,9 +60,12 @@ class ScreeningContext:
     map_descriptors: np.ndarray = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
     descriptors: np.ndarray | None = None
     octave: np.ndarray | None = None
+    scale_factor: float = 1.2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "T_c_w_pred", _pose_or_none(self.T_c_w_pred, "T_c_w_pred"))
+        if not self.scale_factor > 1:
+            raise ValueError(f"ScreeningContext.scale_factor must be > 1, got {self.scale_factor}")
         ids = np.asarray(self.map_ids, np.int64).reshape(-1)
         xyz = np.asarray(self.map_xyz, np.float64).reshape(-1, 3)
         desc = np.asarray(self.map_descriptors, np.uint8).reshape(-1, 32)

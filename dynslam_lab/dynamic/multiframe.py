@@ -37,6 +37,14 @@ background that a mover has just uncovered, so it is used only by the region sta
 
 Both run densely on a reduced grid (``factor``, default 4: 160x120 for 640x480) for the region
 stage, and the forward test also at every keypoint at full resolution.
+
+The **2-D test** is Chang et al.'s eq. 2 (:mod:`.multiview`) against an older frame (``lk_offset``,
+default 8 frames back) instead of the previous one: a flat face sliding within its own plane keeps
+its depth, and a mover that starts slowly has moved 2-3 cm (6 px at 2 m) after 8 frames but not 4 px
+in any one. Each keypoint with depth is predicted into that frame as if static; pyramidal LK starts
+at the prediction (``OPTFLOW_USE_INITIAL_FLOW``) and is checked forward-backward; where the older
+frame's depth agrees with the prediction (the point was visible then), a keypoint found more than
+``reprojection_px`` from its prediction has moved (ours).
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ import numpy as np
 
 from ..geometry.se3 import se3_inv
 
-__all__ = ["MultiFrameConfig", "FreeSpace", "free_space_test", "eroded_depth", "grid_points", "vanished_test"]
+__all__ = ["MultiFrameConfig", "FreeSpace", "free_space_test", "eroded_depth", "grid_points", "vanished_test", "guided_lk"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +64,8 @@ class MultiFrameConfig:
     """Parameters of the multi-frame free-space test (DynaSLAM, Bescos et al. 2018; Chang et al. 2021 eq. 2)."""
 
     offsets: tuple[int, ...] = (1, 2, 4, 8, 16)  # earlier frames judged against, in frames back; ours (DynaSLAM: 5 keyframes)
+    lk_offset: int = 8  # the earlier frame of the 2-D test (frames back; the nearest kept one with a pose); 0 = off; ours
+    reprojection_px: float = 3.0  # 2-D test: keypoint this far from where a static point would be (px); Chang et al. 2021: 4 (one frame)
     depth_m: float = 0.1  # free-space margin tau (m); Chang et al. 2021: 0.1 (DynaSLAM's tau_z 0.4 on TUM)
     depth_quadratic: float = 0.01  # tau grows as depth_quadratic * z^2 (1/m); ours, as in MultiViewConfig
     min_filter_px: int = 2  # radius of the minimum filter on the earlier frame's depth (full-res px); ours
@@ -69,6 +79,8 @@ class MultiFrameConfig:
             raise ValueError("MultiFrameConfig: depth_m must be > 0 (m) and depth_quadratic >= 0 (1/m)")
         if self.min_filter_px < 0 or self.factor < 1 or self.border_px < 0:
             raise ValueError("MultiFrameConfig: min_filter_px >= 0, factor >= 1 and border_px >= 0 required")
+        if self.lk_offset < 0 or self.reprojection_px <= 0:
+            raise ValueError("MultiFrameConfig: lk_offset must be >= 0 (frames) and reprojection_px > 0 (px)")
 
     @property
     def history_length(self) -> int:
@@ -194,3 +206,30 @@ def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, conf
             hit = inside & (zc > 0) & (zc - zp > _tau(zp, config))
         seen[j, idx[hit]] = True
     return seen.sum(axis=0).reshape(h, w)
+
+
+def guided_lk(gray: np.ndarray, ref_gray: np.ndarray, uv: np.ndarray, guess: np.ndarray, config) -> tuple[np.ndarray, np.ndarray]:
+    """Pyramidal LK of keypoints ``uv (M, 2)`` of ``gray`` into ``ref_gray``, started at ``guess (M, 2)``
+    and checked forward-backward (``config``: :class:`~dynslam_lab.dynamic.epipolar.LkConfig`).
+
+    Returns ``(uv_ref (M, 2), ok (M,))``; ``nan`` rows where tracking failed.
+    """
+    m = len(uv)
+    if m == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, config.max_iterations, config.epsilon)
+    win = (config.win_size, config.win_size)
+    p0 = np.asarray(uv, np.float32).reshape(-1, 1, 2)
+    g = np.asarray(guess, np.float32).reshape(-1, 1, 2).copy()
+    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, ref_gray, p0, g, winSize=win, maxLevel=config.max_level, criteria=crit,
+                                          flags=flags)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(ref_gray, gray, p1, p0.copy(), winSize=win, maxLevel=config.max_level,
+                                           criteria=crit, flags=flags)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)
+    h, w = ref_gray.shape
+    q = p1.reshape(-1, 2).astype(np.float64)
+    ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < config.fb_max_px)
+    ok &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+    q[~ok] = np.nan
+    return q, ok

@@ -19,11 +19,24 @@ and the fallbacks are ours):
    distance <= ``max_hamming``, best / second best <= ``ratio``;
    :func:`dynslam_lab.features.matching.search_by_projection`). Map points the screener has seen
    moving (temporal consistency, :mod:`.temporal`) are left out.
-3. **Refinement.** Matches within ``gate_px`` of the prediction are refined by Levenberg-Marquardt
-   on the reprojection error (``cv2.solvePnPRefineLM``), then once more on those within
-   ``inlier_px`` of the refined pose. Because the refinement starts at the prediction and only
-   admits matches already close to it, a mover that covers most of the image cannot pull the
-   pose: its keypoints have no partner among the map points, or one far from the prediction.
+3. **Refinement.** Matches within ``gate_px`` of the prediction refine it by iteratively
+   reweighted Gauss-Newton on the reprojection error with a Cauchy weight whose scale shrinks
+   (``scales_px``, 4 px down to 0.7 px). Because the refinement starts at the prediction, only
+   admits matches already close to it and ends with a tight scale, a mover cannot pull the pose:
+   its keypoints have no partner among the map points, or one far from the prediction, or (a
+   mover mapped while it stood still that starts to move) one whose displacement puts it outside
+   the final scale while the static majority agrees within it. Near-field movers matter most
+   here: a distant background hardly constrains the camera's translation (it trades against a
+   rotation), so a least-squares fit over every match would follow a close box by centimetres.
+   Keypoints matched well to a map point but farther than ``moving_px`` from it under the refined
+   pose saw that point move (``moved``; :mod:`.temporal` remembers it).
+3b. **Surfaces that move against the rest** (ours). The refinement cannot tell a camera that
+   moved from a close box that moved while the rest of the map is far: the far background
+   barely resists. So every surface of the frame holding enough matches (a connected piece of
+   the depth image without depth steps or creases, :func:`~dynslam_lab.dynamic.regions.surface_segments`)
+   is left out in turn and the pose refined on the others; a surface whose matches then miss
+   their map points by much more than the others do has moved (a box mapped while it stood
+   still and now pushed away). Its matches leave the final refinement and mark its keypoints.
 4. **Fallbacks.** Fewer than ``min_inliers`` matches: the prediction itself when there is one
    (``source="prediction"``); no prediction either: the two-frame rough pose of the multi-view
    check (``source="two_frame"``, RANSAC, the papers' way), or none.
@@ -37,9 +50,9 @@ import cv2
 import numpy as np
 
 from ..features.matching import search_by_projection
-from ..geometry.se3 import make_pose, se3_inv, transform_points
+from ..geometry.se3 import make_pose, se3_inv, so3_exp, transform_points
 
-__all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "map_reference_pose"]
+__all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "map_reference_pose"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +65,12 @@ class ReferencePoseConfig:
     gate_px: float = 6.0  # matches farther than this from the prediction stay out of the refinement (px); ours
     inlier_px: float = 2.5  # reprojection error of the final inliers (px); ours (ORB-SLAM2's chi^2 5.991 at 1 px sigma ~ 2.45)
     min_inliers: int = 25  # fewer inliers: keep the prediction unrefined (px); ours
+    scales_px: tuple[float, ...] = (4.0, 2.0, 1.0, 0.7)  # Cauchy scales of the robust refinement, widest first (px); ours
+    moving_px: float = 4.0  # a keypoint this far from its map point under the reference pose saw the point move (px); ours
+    moving_hamming: int = 50  # ... when its descriptor matches the point this well (bits); ORB-SLAM2 TH_LOW 50
+    segment_min_matches: int = 15  # surfaces with fewer map matches are not tested on their own (step 3b); ours
+    segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
+    segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
     max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
 
@@ -63,6 +82,12 @@ class ReferencePoseConfig:
             raise ValueError(f"ReferencePoseConfig.max_hamming must be in [0, 256] bits, got {self.max_hamming}")
         if not 0 < self.ratio <= 1:
             raise ValueError(f"ReferencePoseConfig.ratio must be in (0, 1], got {self.ratio}")
+        if not self.scales_px or any(v <= 0 for v in self.scales_px):
+            raise ValueError(f"ReferencePoseConfig.scales_px must be positive pixel scales, got {self.scales_px}")
+        if self.moving_px <= self.inlier_px:
+            raise ValueError(f"ReferencePoseConfig.moving_px ({self.moving_px}) must exceed inlier_px ({self.inlier_px})")
+        if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1:
+            raise ValueError("ReferencePoseConfig: segment_min_matches >= 6, segment_min_px > 0 and segment_ratio > 1 required")
         if self.min_inliers < 6:
             raise ValueError(f"ReferencePoseConfig.min_inliers must be >= 6 (a pose has 6 unknowns), got {self.min_inliers}")
 
@@ -80,6 +105,8 @@ class ReferencePose:
     map_index : ``(N,)`` int64 row of the context's map point matched to each keypoint, -1 for none.
     residual_px : ``(N,)`` reprojection error of each matched keypoint under ``T_c_w`` (nan unmatched).
     inliers : ``(N,)`` bool, matched keypoints within ``inlier_px`` of their map point.
+    moved : ``(N,)`` bool, keypoints matched well (``moving_hamming``) but farther than ``moving_px``
+        from their map point: the point has moved since it was mapped.
     """
 
     T_c_w: np.ndarray | None
@@ -87,10 +114,11 @@ class ReferencePose:
     map_index: np.ndarray
     residual_px: np.ndarray
     inliers: np.ndarray
+    moved: np.ndarray
 
     @classmethod
     def none(cls, n: int) -> "ReferencePose":
-        return cls(None, "", np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool))
+        return cls(None, "", np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
 
 
 def _reprojection_px(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -102,25 +130,67 @@ def _reprojection_px(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.n
     return np.where(X[:, 2] > 0, err, np.inf)
 
 
-def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Levenberg-Marquardt refinement of ``T_c_w`` on the reprojection error of ``X_w (M, 3)`` at
-    ``uv (M, 2)`` (``cv2.solvePnPRefineLM``, started at ``T_c_w``)."""
-    rvec, _ = cv2.Rodrigues(np.asarray(T_c_w[:3, :3], np.float64))
-    tvec = np.asarray(T_c_w[:3, 3], np.float64).reshape(3, 1)
-    rvec, tvec = cv2.solvePnPRefineLM(np.asarray(X_w, np.float64), np.asarray(uv, np.float64), np.asarray(K, np.float64),
-                                      None, rvec, tvec)
-    R, _ = cv2.Rodrigues(rvec)
-    return make_pose(R, tvec.reshape(3))
+def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, scales_px=(4.0, 2.0, 1.0),
+                iterations: int = 3, sigma: np.ndarray | None = None) -> np.ndarray:
+    """Robust Gauss-Newton refinement of ``T_c_w`` on the reprojection error of ``X_w (M, 3)`` at ``uv (M, 2)``.
+
+    Iteratively reweighted least squares with the Cauchy weight ``1 / (1 + (|r| / s)^2)`` on the
+    residual in units of each keypoint's ``sigma (M,)`` (px; ORB-SLAM2 uses the pyramid scale of the
+    keypoint's level), the scale ``s`` shrinking through ``scales_px`` (``iterations`` Gauss-Newton
+    steps each), the pose updated on the left (``T <- exp(delta) T``).
+    """
+    T = np.asarray(T_c_w, np.float64).copy()
+    X_w = np.asarray(X_w, np.float64)
+    uv = np.asarray(uv, np.float64)
+    inv_sigma = np.ones(len(X_w)) if sigma is None else 1.0 / np.asarray(sigma, np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    for s in scales_px:
+        for _ in range(int(iterations)):
+            X = X_w @ T[:3, :3].T + T[:3, 3]
+            z = X[:, 2]
+            ok = z > 1e-6
+            if ok.sum() < 6:
+                return T
+            x, y, z = X[ok, 0], X[ok, 1], z[ok]
+            iz = 1.0 / z
+            isg = inv_sigma[ok]
+            r = (uv[ok] - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
+            w = isg * isg / (1.0 + (np.einsum("ij,ij->i", r, r) / (s * s)))
+            # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point
+            J = np.zeros((len(z), 2, 6))
+            J[:, 0, 0] = -fx * x * y * iz * iz
+            J[:, 0, 1] = fx * (1 + x * x * iz * iz)
+            J[:, 0, 2] = -fx * y * iz
+            J[:, 0, 3] = fx * iz
+            J[:, 0, 5] = -fx * x * iz * iz
+            J[:, 1, 0] = -fy * (1 + y * y * iz * iz)
+            J[:, 1, 1] = fy * x * y * iz * iz
+            J[:, 1, 2] = fy * x * iz
+            J[:, 1, 4] = fy * iz
+            J[:, 1, 5] = -fy * y * iz * iz
+            Jw = J * w[:, None, None]
+            H = np.einsum("nki,nkj->ij", Jw, J)
+            g = np.einsum("nki,nk->i", Jw, r / isg[:, None])
+            try:
+                delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                return T
+            dT = make_pose(so3_exp(delta[:3]), delta[3:])
+            T = dT @ T
+            if np.linalg.norm(delta) < 1e-8:
+                break
+    return T
 
 
 def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig, exclude_ids=None):
     """Step 2: map points matched to keypoints near their predicted pixels.
 
-    Returns ``(rows, kp)``: rows of the context's map arrays and the keypoint index of each match.
+    Returns ``(rows, kp, hamming)``: rows of the context's map arrays, the keypoint index and the
+    descriptor distance of each match.
     """
     T = context.T_c_w_pred
     n_map = context.n_map_points
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
     if T is None or n_map == 0 or context.descriptors is None or len(uv) == 0:
         return empty
     rows = np.arange(n_map)
@@ -133,7 +203,7 @@ def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfi
         return empty
     m = search_by_projection(uv_hat, context.map_descriptors[rows], np.full(len(rows), config.search_radius_px), None,
                              uv, context.octave, context.descriptors, max_distance=config.max_hamming, ratio=config.ratio)
-    return rows[m.idx_a], m.idx_b
+    return rows[m.idx_a], m.idx_b, m.distance
 
 
 def _correction_ok(T_a: np.ndarray, T_b: np.ndarray, config: ReferencePoseConfig) -> bool:
@@ -142,8 +212,32 @@ def _correction_ok(T_a: np.ndarray, T_b: np.ndarray, config: ReferencePoseConfig
     return bool(np.linalg.norm(D[:3, 3]) <= config.max_correction_m and ang <= config.max_correction_deg)
 
 
+def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
+                          labels: np.ndarray, use: np.ndarray, config: "ReferencePoseConfig") -> np.ndarray:
+    """Step 3b: the matches on surfaces that move against the rest of the map.
+
+    For each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches and at
+    most half of them, the pose is refined without it (from ``T_c_w``, on the matches ``use``); the
+    surface is moving when its median normalised reprojection error under that pose exceeds both
+    ``segment_min_px`` and ``segment_ratio`` times the median of the other matches. Returns ``(M,)``
+    bool.
+    """
+    out = np.zeros(len(X_w), bool)
+    labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
+    cand = labs[(counts >= config.segment_min_matches) & (counts * 2 <= use.sum())]
+    for lab in cand:
+        on = labels == lab
+        rest = use & ~on
+        T = refine_pose(T_c_w, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
+        e = _reprojection_px(T, X_w, uv, K) / sigma
+        r_on, r_rest = np.median(e[on & use]), np.median(e[rest])
+        if r_on > max(config.segment_min_px, config.segment_ratio * r_rest):
+            out |= on
+    return out
+
+
 def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseConfig = ReferencePoseConfig(),
-                       exclude_ids=None) -> ReferencePose:
+                       exclude_ids=None, surfaces: np.ndarray | None = None) -> ReferencePose:
     """Steps 1-4 except the two-frame fallback (which needs the LK pairs; see :mod:`.stages`).
 
     Parameters
@@ -152,6 +246,7 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
     uv : ``(N, 2)`` keypoint pixels (undistorted).
     camera : intrinsics.
     exclude_ids : map point ids left out (seen moving).
+    surfaces : ``(N,)`` int surface label of each keypoint (0 = none) for step 3b, or None.
 
     Returns
     -------
@@ -163,26 +258,29 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
         return out
     T_pred = context.T_c_w_pred
     out.T_c_w, out.source = T_pred, "prediction"
-    rows, kp = match_map_points(context, uv, camera, config, exclude_ids)
+    rows, kp, ham = match_map_points(context, uv, camera, config, exclude_ids)
     if len(rows) < config.min_inliers:
         return out
     K = camera.K
     X, q = context.map_xyz[rows], uv[kp]
+    sigma = context.scale_factor ** context.octave[kp].astype(np.float64)
     err = _reprojection_px(T_pred, X, q, K)
     use = err < config.gate_px
     if use.sum() < config.min_inliers:
         return out
-    T = refine_pose(T_pred, X[use], q[use], K)
+    T = refine_pose(T_pred, X[use], q[use], K, config.scales_px, sigma=sigma[use])
+    moving = np.zeros(len(rows), bool)
+    if surfaces is not None:
+        moving = inconsistent_surfaces(T, X, q, K, sigma, np.asarray(surfaces)[kp], use, config)
+        keep = use & ~moving
+        if moving.any() and keep.sum() >= config.min_inliers:
+            T = refine_pose(T, X[keep], q[keep], K, config.scales_px[-2:], sigma=sigma[keep])
     err = _reprojection_px(T, X, q, K)
-    use = err < config.inlier_px
-    if use.sum() < config.min_inliers:
+    if (err < config.inlier_px).sum() < config.min_inliers or not _correction_ok(T, T_pred, config):
         return out
-    T = refine_pose(T, X[use], q[use], K)
-    if not _correction_ok(T, T_pred, config):
-        return out
-    err = _reprojection_px(T, X, q, K)
     out.T_c_w, out.source = T, "map"
     out.map_index[kp] = rows
     out.residual_px[kp] = err
-    out.inliers[kp] = err < config.inlier_px
+    out.inliers[kp] = (err < config.inlier_px) & ~moving
+    out.moved[kp] = ((err > config.moving_px) & (ham <= config.moving_hamming)) | moving
     return out

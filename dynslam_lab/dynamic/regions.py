@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["RegionConfig", "depth_continuity", "grow_regions", "continuity_components", "supported_regions", "cells_at", "splat"]
+__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "cells_at", "splat"]
 
 
 @dataclass(frozen=True)
@@ -42,10 +42,13 @@ class RegionConfig:
     static_min_agree: int = 2  # a cell is confirmed static when this many earlier frames (and all tested) agree; ours
     min_fresh_cells: int = 3  # a region needs this many cells of fresh evidence; ours
     seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
+    crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
 
     def __post_init__(self) -> None:
         if self.steps < 0 or self.min_fresh_cells < 1 or self.static_min_agree < 1:
             raise ValueError("RegionConfig: steps >= 0, min_fresh_cells >= 1 and static_min_agree >= 1 required")
+        if not 0 < self.crease_deg < 180:
+            raise ValueError(f"RegionConfig.crease_deg must be in (0, 180) degrees, got {self.crease_deg}")
         if not 0 < self.continuity_rel < 1:
             raise ValueError(f"RegionConfig.continuity_rel must be in (0, 1), got {self.continuity_rel}")
 
@@ -59,6 +62,40 @@ def depth_continuity(depth: np.ndarray, rel: float) -> tuple[np.ndarray, np.ndar
     a, b = z[1:], z[:-1]
     vert = (a > 0) & (b > 0) & (np.abs(a - b) < rel * np.minimum(a, b))
     return horiz, vert
+
+
+def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(h, w - 1)`` and ``(h - 1, w)`` bool: neighbours not separated by a crease of the surface.
+
+    Normals come from central differences of the back-projected grid (``camera`` of the grid); the
+    edge between cells ``x`` and ``x + 1`` is a crease when the normals at ``x - 1`` and ``x + 2`` (on
+    either side, beyond the cells a corner blurs) differ by more than ``max_angle_deg``: a box face
+    and the floor it stands on, a wall and the ceiling. Cells without depth join nothing.
+    """
+    z = np.asarray(depth, np.float32)
+    h, w = z.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    P = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=-1)
+    dx = np.zeros_like(P)
+    dy = np.zeros_like(P)
+    dx[:, 1:-1] = P[:, 2:] - P[:, :-2]
+    dy[1:-1] = P[2:] - P[:-2]
+    n = np.cross(dx, dy)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
+    c = np.float32(np.cos(np.radians(max_angle_deg)))
+    horiz = np.ones((h, w - 1), bool)
+    horiz[:, 1:-1] = np.einsum("ijk,ijk->ij", n[:, :-3], n[:, 3:]) >= c
+    vert = np.ones((h - 1, w), bool)
+    vert[1:-1] = np.einsum("ijk,ijk->ij", n[:-3], n[3:]) >= c
+    return horiz, vert
+
+
+def surface_segments(depth: np.ndarray, camera, continuity_rel: float, crease_deg: float) -> tuple[int, np.ndarray]:
+    """Surfaces of a depth grid: cells joined across continuous depth and no crease
+    (:func:`depth_continuity`, :func:`crease_continuity`). Returns ``(n labels, (h, w) int32)``, 0 = no depth."""
+    ch, cv = depth_continuity(depth, continuity_rel)
+    kh, kv = crease_continuity(depth, camera, crease_deg)
+    return continuity_components(np.asarray(depth) > 0, (ch & kh, cv & kv))
 
 
 def grow_regions(seeds: np.ndarray, allowed: np.ndarray, continuity: tuple[np.ndarray, np.ndarray], steps: int) -> np.ndarray:

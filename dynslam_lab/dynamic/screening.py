@@ -198,8 +198,9 @@ class Screener:
         """Keep this frame for the next ones; remember the map points matched to dynamic keypoints."""
         mem = self.memory
         ref = w.reference_if_computed
+        self.last_reference = ref
         if ref is not None and context is not None:
-            moving = w.dynamic & (ref.map_index >= 0) & ~ref.inliers
+            moving = ((w.dynamic & ~ref.inliers) | ref.moved) & (ref.map_index >= 0)
             if moving.any():
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
         region = w.grid_region

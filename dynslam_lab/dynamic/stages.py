@@ -41,10 +41,10 @@ from .flow import flow_regions
 from .geometric_rule import level_rule_verdict
 from .history import FrameHistory, PastFrame, reduce_depth
 from .motion_probability import restore_by_motion_probability
-from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
+from .multiframe import eroded_depth, free_space_test, grid_points, guided_lk, vanished_test
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
-from .regions import cells_at, depth_continuity, grow_regions, splat, supported_regions
+from .regions import cells_at, depth_continuity, grow_regions, splat, supported_regions, surface_segments
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
 from .temporal import MovingMapPoints, warp_region
@@ -129,6 +129,7 @@ class FrameWork:
         self.fresh_cells: list[np.ndarray] = []  # (h, w) bool fresh evidence for the region stage
         self.prior_cells: np.ndarray | None = None  # (h, w) bool temporal prior
         self.static_cells: np.ndarray | None = None  # (h, w) bool confirmed static by the multi-frame test
+        self.vanished_cells: np.ndarray | None = None  # (h, w) bool: an earlier frame's point there is seen through
         self._cache: dict[str, object] = {}
         prev = memory.history.last
         self.prev: PastFrame | None = prev if prev is not None and prev.gray.shape == self.shape else None
@@ -159,7 +160,7 @@ class FrameWork:
 
         def run():
             ref = map_reference_pose(self.context, self.uv_undistorted, self.camera, self.config.reference,
-                                     exclude_ids=self.memory.moving_points.array())
+                                     exclude_ids=self.memory.moving_points.array(), surfaces=self.surfaces())
             if ref.T_c_w is None:
                 ref = self._two_frame_reference()
             return ref
@@ -208,6 +209,22 @@ class FrameWork:
     def small_depth(self) -> np.ndarray:
         """The current depth on the reduced grid (:func:`~dynslam_lab.dynamic.history.reduce_depth`)."""
         return self._timed("reduce_depth", lambda: reduce_depth(self.frame.depth, self.config.multiframe.factor))
+
+    def surfaces(self) -> np.ndarray:
+        """``(N,)`` int label of the surface each keypoint lies on (:func:`~dynslam_lab.dynamic.regions.surface_segments`
+        on the reduced grid; 0 = none, or a keypoint off its cell's depth)."""
+
+        def run():
+            cfg = self.config.regions
+            small = self.small_depth
+            _, labels = surface_segments(small, self.grid_camera, cfg.continuity_rel, cfg.crease_deg)
+            r, c, inside = cells_at(self.uv, self.config.multiframe.factor, small.shape)
+            zc = small[r, c]
+            with np.errstate(invalid="ignore"):
+                on = inside & (zc > 0) & ~(np.abs(self.z - zc) > 2 * cfg.continuity_rel * zc)
+            return np.where(on, labels[r, c], 0)
+
+        return self._timed("surfaces", run)
 
     def grid_points(self) -> tuple[np.ndarray, np.ndarray]:
         """Camera points of the reduced grid's cells with depth, and their flat indices."""
@@ -360,6 +377,8 @@ def multiframe_stage(w: FrameWork) -> None:
     margin = np.full(n, np.nan)
     margin[ok] = fs.margin_m
     w.values["free_space_m"] = margin
+    moved_2d = _older_frame_2d_test(w, refs, X_w, ok)
+    col |= moved_2d
     # the reduced grid
     cam = w.grid_camera
     small = w.small_depth
@@ -379,9 +398,41 @@ def multiframe_stage(w: FrameWork) -> None:
     van = vanished_test(pts_refs, T_w_c, eroded_depth(small, 1), cam, cfg).reshape(-1)
     need = min(w.config.regions.static_min_agree, len(refs))  # one earlier frame: its agreement must do
     static = (viol == 0) & (van == 0) & (agree >= need) & (agree >= occluded)
-    w.static_cells = static.reshape(h, wd)
+    static = static.reshape(h, wd) & ~splat(w.uv, moved_2d, cfg.factor, (h, wd))
+    w.static_cells = static
     w.fresh_cells.append((viol > 0).reshape(h, wd))
-    w._cache["vanished_cells"] = (van > 0).reshape(h, wd)
+    w.vanished_cells = (van > 0).reshape(h, wd)
+
+
+def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Chang et al.'s eq. 2 against an older frame (:mod:`.multiframe`): ``(N,)`` bool, keypoints found by
+    guided LK more than ``reprojection_px`` from their static prediction where that frame saw them."""
+    cfg = w.config.multiframe
+    n = w.n
+    moved = np.zeros(n, bool)
+    if cfg.lk_offset <= 0 or not refs:
+        return moved
+    target = max(w.frame.index - cfg.lk_offset, -1)
+    past = min(refs, key=lambda f: abs(f.index - target))
+    T_j_w = se3_inv(past.T_w_c)
+    uv_j, z_j = w.camera.project(transform_points(T_j_w, X_w))
+    d_j = _cached(past, "depth_min", lambda: eroded_depth(past.depth, cfg.min_filter_px))
+    zm = depth_at(d_j, np.nan_to_num(uv_j, nan=-1.0))
+    tau = np.maximum(cfg.depth_m, cfg.depth_quadratic * z_j**2)
+    with np.errstate(invalid="ignore"):
+        seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau)
+    idx = np.flatnonzero(ok)[seen]
+    if len(idx) == 0:
+        return moved
+    t0 = time.perf_counter()
+    uv_lk, tracked = guided_lk(w.gray, past.gray, w.uv[idx], uv_j[seen], w.config.lk)
+    w.timings["lk_older"] = _ms(t0)
+    err = np.full(n, np.nan)
+    err[idx[tracked]] = np.linalg.norm(uv_lk[tracked] - uv_j[seen][tracked], axis=1)
+    w.values["older_reprojection_px"] = err
+    with np.errstate(invalid="ignore"):
+        moved = err > cfg.reprojection_px
+    return moved
 
 
 def flow_stage(w: FrameWork) -> None:
@@ -411,6 +462,7 @@ def temporal_stage(w: FrameWork) -> None:
     if has.any() and w.context is not None:
         ids = w.context.map_ids[ref.map_index[has]]
         col[np.flatnonzero(has)] = w.memory.moving_points.contains(ids)
+        col |= ref.moved
     w.stages["temporal"] = col
     prev = w.prev
     if prev is None or prev.region is None or prev.T_w_c is None or ref.T_c_w is None:
@@ -434,15 +486,17 @@ def regions_stage(w: FrameWork) -> None:
             if name in w.stages:
                 kp |= w.stages[name]
         fresh |= splat(w.uv, kp, factor, shape)
+    prior = w.prior_cells if w.prior_cells is not None else np.zeros(shape, bool)
+    vanished = w.vanished_cells if w.vanished_cells is not None else np.zeros(shape, bool)
+    # a mover carried by the prior whose earlier surface this frame sees through (it recedes) stays supported
+    support = fresh | (vanished & prior & False)
     allowed = small > 0
     if w.static_cells is not None:
-        passable = ~w.static_cells
-        if w.prior_cells is not None:
-            passable |= w.prior_cells
-        allowed &= passable
+        allowed &= ~w.static_cells | prior
+    allowed &= ~(vanished & ~prior)  # background a mover has just uncovered
     continuity = depth_continuity(small, cfg.continuity_rel)
-    grown = grow_regions(fresh, allowed | fresh, continuity, cfg.steps)
-    region = supported_regions(grown, fresh, cfg.min_fresh_cells, continuity)
+    grown = grow_regions(support, allowed | support, continuity, cfg.steps)
+    region = supported_regions(grown, support, cfg.min_fresh_cells, continuity)
     w.grid_region = region
     r, c, inside = cells_at(w.uv, factor, shape)
     # a keypoint takes its cell's verdict when it lies on the cell's surface (a keypoint on the wall

@@ -32,7 +32,7 @@ __all__ = ["TemporalConfig", "warp_region", "MovingMapPoints"]
 class TemporalConfig:
     """Parameters of temporal consistency (ours)."""
 
-    dilate_cells: int = 2  # the previous region grows by this many cells before the lookup; ours
+    dilate_cells: int = 0  # the previous region grows by this many cells before the lookup; ours, 0 (a grown prior spills onto uncovered background)
     max_moving_points: int = 200_000  # map point ids remembered at most (oldest forgotten first); ours
 
     def __post_init__(self) -> None:

@@ -184,7 +184,8 @@ class System:
         ids = np.concatenate([self.map.keyframes[k].map_point_ids for k in kf_ids]) if kf_ids else np.zeros(0, np.int64)
         ids = np.unique(ids[ids >= 0])
         ids = ids[self.map.alive[ids]]
-        return ScreeningContext(T_pred, poses, ids, self.map.xyz[ids], self.map.descriptors[ids], feats.descriptors, feats.octave)
+        return ScreeningContext(T_pred, poses, ids, self.map.xyz[ids], self.map.descriptors[ids], feats.descriptors, feats.octave,
+                                self.config.orb.scale_factor)
 
     def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False) -> tuple[KeyFrame, np.ndarray]:
         """Insert a keyframe made from ``sf`` with new points from depth (all of them at the
