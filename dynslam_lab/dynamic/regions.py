@@ -76,17 +76,21 @@ def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float) -> tuple[
     h, w = z.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float32)
     P = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=-1)
-    dx = np.zeros_like(P)
-    dy = np.zeros_like(P)
-    dx[:, 1:-1] = P[:, 2:] - P[:, :-2]
-    dy[1:-1] = P[2:] - P[:-2]
+    dx = np.gradient(P, axis=1)  # central differences, one-sided at the border
+    dy = np.gradient(P, axis=0)
     n = np.cross(dx, dy)
-    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)  # zero where undefined: never a crease
     c = np.float32(np.cos(np.radians(max_angle_deg)))
+
+    def joined(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        dot = np.einsum("...k,...k->...", a, b)
+        return (dot >= c) | ~(np.any(a != 0, axis=-1) & np.any(b != 0, axis=-1))
+
     horiz = np.ones((h, w - 1), bool)
-    horiz[:, 1:-1] = np.einsum("ijk,ijk->ij", n[:, :-3], n[:, 3:]) >= c
+    horiz[:, 1:-1] = joined(n[:, :-3], n[:, 3:])
     vert = np.ones((h - 1, w), bool)
-    vert[1:-1] = np.einsum("ijk,ijk->ij", n[:-3], n[3:]) >= c
+    vert[1:-1] = joined(n[:-3], n[3:])
     return horiz, vert
 
 
