@@ -40,8 +40,12 @@ def main(argv: list[str] | None = None) -> int:
     specs = synthetic_specs([n.strip() for n in names if n.strip()], n_frames=args.frames)
     print(f"{len(specs)} sequences ready ({time.time() - t0:.0f} s)")
     only = [f.strip() for f in args.filters.split(",")] if args.filters else None
+    def line(r: dict) -> None:
+        print(f"{r['sequence']:<20} {r['filter']:<14} ATE {r['ate_rmse_m']:.4f} m  P {r['precision']:.3f} R {r['recall']:.3f}  "
+              f"lost {r['lost']} loops {r['loops']}  {r['ms_per_frame']:.0f} ms/frame", flush=True)
+
     run_robustness(specs, args.out, onnx_model=args.model, filters=only, loop_closing=not args.no_loop,
-                   resume=not args.fresh)
+                   resume=not args.fresh, on_run=line)
     print((Path(args.out) / "robustness.md").read_text())
     print(f"wrote {args.out}/robustness.csv, robustness.md, robustness.png ({time.time() - t0:.0f} s)")
     return 0

@@ -36,7 +36,11 @@ and the fallbacks are ours):
    the depth image without depth steps or creases, :func:`~dynslam_lab.dynamic.regions.surface_segments`)
    is left out in turn and the pose refined on the others; a surface whose matches then miss
    their map points by much more than the others do has moved (a box mapped while it stood
-   still and now pushed away). Its matches leave the final refinement and mark its keypoints.
+   still and now pushed away). With two such groups the evidence is symmetric (the box moved,
+   or everything else did), and the surface counts as moving only when leaving it out brings
+   the pose closer to the constant-velocity prediction. Surfaces are joined across convex edges
+   (an object stays whole) and cut at concave ones (from the floor it stands on). Its matches
+   leave the final refinement and mark its keypoints.
 4. **Fallbacks.** Fewer than ``min_inliers`` matches: the prediction itself when there is one
    (``source="prediction"``); no prediction either: the two-frame rough pose of the multi-view
    check (``source="two_frame"``, RANSAC, the papers' way), or none.
@@ -71,6 +75,7 @@ class ReferencePoseConfig:
     segment_min_matches: int = 15  # surfaces with fewer map matches are not tested on their own (step 3b); ours
     segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
+    segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
     max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
     max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
 
@@ -86,8 +91,9 @@ class ReferencePoseConfig:
             raise ValueError(f"ReferencePoseConfig.scales_px must be positive pixel scales, got {self.scales_px}")
         if self.moving_px <= self.inlier_px:
             raise ValueError(f"ReferencePoseConfig.moving_px ({self.moving_px}) must exceed inlier_px ({self.inlier_px})")
-        if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1:
-            raise ValueError("ReferencePoseConfig: segment_min_matches >= 6, segment_min_px > 0 and segment_ratio > 1 required")
+        if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1 or self.segment_max_movers < 0:
+            raise ValueError("ReferencePoseConfig: segment_min_matches >= 6, segment_min_px > 0, segment_ratio > 1 and "
+                             "segment_max_movers >= 0 required")
         if self.min_inliers < 6:
             raise ValueError(f"ReferencePoseConfig.min_inliers must be >= 6 (a pose has 6 unknowns), got {self.min_inliers}")
 
@@ -106,7 +112,9 @@ class ReferencePose:
     residual_px : ``(N,)`` reprojection error of each matched keypoint under ``T_c_w`` (nan unmatched).
     inliers : ``(N,)`` bool, matched keypoints within ``inlier_px`` of their map point.
     moved : ``(N,)`` bool, keypoints matched well (``moving_hamming``) but farther than ``moving_px``
-        from their map point: the point has moved since it was mapped.
+        from their map point: the point may have moved since it was mapped (or the match is wrong).
+    surface_moved : ``(N,)`` bool, keypoints on a surface that moves against the rest (step 3b).
+    known_moving : ``(N,)`` bool, keypoints matched to a map point seen moving before.
     """
 
     T_c_w: np.ndarray | None
@@ -115,10 +123,13 @@ class ReferencePose:
     residual_px: np.ndarray
     inliers: np.ndarray
     moved: np.ndarray
+    surface_moved: np.ndarray
+    known_moving: np.ndarray
 
     @classmethod
     def none(cls, n: int) -> "ReferencePose":
-        return cls(None, "", np.full(n, -1, np.int64), np.full(n, np.nan), np.zeros(n, bool), np.zeros(n, bool))
+        z = np.zeros(n, bool)
+        return cls(None, "", np.full(n, -1, np.int64), np.full(n, np.nan), z, z.copy(), z.copy(), z.copy())
 
 
 def _reprojection_px(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -182,7 +193,7 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
     return T
 
 
-def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig, exclude_ids=None):
+def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig):
     """Step 2: map points matched to keypoints near their predicted pixels.
 
     Returns ``(rows, kp, hamming)``: rows of the context's map arrays, the keypoint index and the
@@ -194,8 +205,6 @@ def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfi
     if T is None or n_map == 0 or context.descriptors is None or len(uv) == 0:
         return empty
     rows = np.arange(n_map)
-    if exclude_ids is not None and len(exclude_ids):
-        rows = rows[~np.isin(context.map_ids, exclude_ids)]
     uv_hat, z = camera.project(transform_points(T, context.map_xyz[rows]))
     vis = (z > 0) & camera.in_image(uv_hat)
     rows, uv_hat = rows[vis], uv_hat[vis]
@@ -212,27 +221,62 @@ def _correction_ok(T_a: np.ndarray, T_b: np.ndarray, config: ReferencePoseConfig
     return bool(np.linalg.norm(D[:3, 3]) <= config.max_correction_m and ang <= config.max_correction_deg)
 
 
+def _pose_gap_px(T_a: np.ndarray, T_b: np.ndarray, X_w: np.ndarray, K: np.ndarray) -> float:
+    """Median pixel distance between the projections of ``X_w`` under two poses."""
+    ua, _ = _project(T_a, X_w, K)
+    ub, _ = _project(T_b, X_w, K)
+    return float(np.nanmedian(np.linalg.norm(ua - ub, axis=1)))
+
+
+def _project(T: np.ndarray, X_w: np.ndarray, K: np.ndarray):
+    X = transform_points(T, X_w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2], K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]], axis=1)
+    return uv, X[:, 2]
+
+
 def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
-                          labels: np.ndarray, use: np.ndarray, config: "ReferencePoseConfig") -> np.ndarray:
+                          labels: np.ndarray, use: np.ndarray, config: "ReferencePoseConfig",
+                          T_pred: np.ndarray | None = None) -> np.ndarray:
     """Step 3b: the matches on surfaces that move against the rest of the map.
 
-    For each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches and at
-    most half of them, the pose is refined without it (from ``T_c_w``, on the matches ``use``); the
-    surface is moving when its median normalised reprojection error under that pose exceeds both
-    ``segment_min_px`` and ``segment_ratio`` times the median of the other matches. Returns ``(M,)``
-    bool.
+    Each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches, leaving at
+    least ``segment_min_matches`` others, is left out in turn and the pose refined on the others (from
+    ``T_c_w``, on the matches ``use``). The surface is inconsistent when its median error (in units of
+    ``sigma``) under that pose exceeds both ``segment_min_px`` and ``segment_ratio`` times the median of
+    the others. Two groups that disagree are symmetric (is the box moving, or everything but the
+    box?); the constant-velocity prediction ``T_pred`` breaks the tie: a surface is moving only when
+    the pose without it lies closer to the prediction than the pose with it. The worst such surface
+    is removed and the search repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
     """
     out = np.zeros(len(X_w), bool)
-    labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
-    cand = labs[(counts >= config.segment_min_matches) & (counts * 2 <= use.sum())]
-    for lab in cand:
-        on = labels == lab
-        rest = use & ~on
-        T = refine_pose(T_c_w, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
-        e = _reprojection_px(T, X_w, uv, K) / sigma
-        r_on, r_rest = np.median(e[on & use]), np.median(e[rest])
-        if r_on > max(config.segment_min_px, config.segment_ratio * r_rest):
-            out |= on
+    use = use.copy()
+    T = T_c_w
+    for _ in range(config.segment_max_movers):
+        labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
+        total = int(use.sum())
+        cand = labs[(counts >= config.segment_min_matches) & (total - counts >= config.segment_min_matches)]
+        best, best_score, best_T = None, 1.0, None
+        gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
+        for lab in cand:
+            on = (labels == lab) & use
+            rest = use & ~on
+            T_l = refine_pose(T, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
+            e = _reprojection_px(T_l, X_w, uv, K) / sigma
+            r_on, r_rest = np.median(e[on]), np.median(e[rest])
+            bound = max(config.segment_min_px, config.segment_ratio * r_rest)
+            if r_on <= bound:
+                continue
+            if T_pred is not None and _pose_gap_px(T_l, T_pred, X_w[use], K) >= gap_with:
+                continue  # leaving it out moves the pose away from the prediction: the rest moves, not it
+            if r_on / bound > best_score:
+                best, best_score, best_T = lab, r_on / bound, T_l
+        if best is None:
+            break
+        on = labels == best
+        out |= on
+        use &= ~on
+        T = best_T
     return out
 
 
@@ -245,7 +289,8 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
     context : :class:`~dynslam_lab.dynamic.context.ScreeningContext` (prediction, local map, descriptors).
     uv : ``(N, 2)`` keypoint pixels (undistorted).
     camera : intrinsics.
-    exclude_ids : map point ids left out (seen moving).
+    exclude_ids : ids of map points seen moving: matched (their keypoints are reported) but left out
+        of the refinement and never inliers.
     surfaces : ``(N,)`` int surface label of each keypoint (0 = none) for step 3b, or None.
 
     Returns
@@ -258,20 +303,21 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
         return out
     T_pred = context.T_c_w_pred
     out.T_c_w, out.source = T_pred, "prediction"
-    rows, kp, ham = match_map_points(context, uv, camera, config, exclude_ids)
+    rows, kp, ham = match_map_points(context, uv, camera, config)
     if len(rows) < config.min_inliers:
         return out
     K = camera.K
     X, q = context.map_xyz[rows], uv[kp]
     sigma = context.scale_factor ** context.octave[kp].astype(np.float64)
     err = _reprojection_px(T_pred, X, q, K)
-    use = err < config.gate_px
+    known_moving = np.isin(context.map_ids[rows], exclude_ids) if exclude_ids is not None and len(exclude_ids) else np.zeros(len(rows), bool)
+    use = (err < config.gate_px) & ~known_moving
     if use.sum() < config.min_inliers:
         return out
     T = refine_pose(T_pred, X[use], q[use], K, config.scales_px, sigma=sigma[use])
     moving = np.zeros(len(rows), bool)
     if surfaces is not None:
-        moving = inconsistent_surfaces(T, X, q, K, sigma, np.asarray(surfaces)[kp], use, config)
+        moving = inconsistent_surfaces(T, X, q, K, sigma, np.asarray(surfaces)[kp], use, config, T_pred)
         keep = use & ~moving
         if moving.any() and keep.sum() >= config.min_inliers:
             T = refine_pose(T, X[keep], q[keep], K, config.scales_px[-2:], sigma=sigma[keep])
@@ -281,6 +327,8 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
     out.T_c_w, out.source = T, "map"
     out.map_index[kp] = rows
     out.residual_px[kp] = err
-    out.inliers[kp] = (err < config.inlier_px) & ~moving
-    out.moved[kp] = ((err > config.moving_px) & (ham <= config.moving_hamming)) | moving
+    out.inliers[kp] = (err < config.inlier_px) & ~moving & ~known_moving
+    out.moved[kp] = (err > config.moving_px) & (ham <= config.moving_hamming)
+    out.surface_moved[kp] = moving
+    out.known_moving[kp] = known_moving
     return out

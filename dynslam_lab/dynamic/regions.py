@@ -64,13 +64,16 @@ def depth_continuity(depth: np.ndarray, rel: float) -> tuple[np.ndarray, np.ndar
     return horiz, vert
 
 
-def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(h, w - 1)`` and ``(h - 1, w)`` bool: neighbours not separated by a crease of the surface.
+def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float, join_convex: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``(h, w - 1)`` and ``(h - 1, w)`` bool: neighbours not separated by a concave crease of the surface.
 
-    Normals come from central differences of the back-projected grid (``camera`` of the grid); the
-    edge between cells ``x`` and ``x + 1`` is a crease when the normals at ``x - 1`` and ``x + 2`` (on
-    either side, beyond the cells a corner blurs) differ by more than ``max_angle_deg``: a box face
-    and the floor it stands on, a wall and the ceiling. Cells without depth join nothing.
+    Normals come from central differences of the back-projected grid (``camera`` of the grid),
+    turned towards the camera; the edge between cells ``x`` and ``x + 1`` is a crease when the normals
+    at ``x - 1`` and ``x + 2`` (either side, beyond the cells a corner blurs) differ by more than
+    ``max_angle_deg``. With ``join_convex`` a convex crease (the edge of a box, the normals turning away
+    from each other: ``(n_a - n_b) . (p_a - p_b) > 0``) still joins, so an object stays whole while it
+    is cut from the floor it stands on and the wall it leans against (concave creases), the local
+    convexity criterion of Stein et al. (CVPR 2014, LCCP). Cells without depth join nothing.
     """
     z = np.asarray(depth, np.float32)
     h, w = z.shape
@@ -79,18 +82,22 @@ def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float) -> tuple[
     dx = np.gradient(P, axis=1)  # central differences, one-sided at the border
     dy = np.gradient(P, axis=0)
     n = np.cross(dx, dy)
+    n *= -np.sign(np.einsum("...k,...k->...", n, P))[..., None]  # towards the camera
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     n = np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)  # zero where undefined: never a crease
     c = np.float32(np.cos(np.radians(max_angle_deg)))
 
-    def joined(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        dot = np.einsum("...k,...k->...", a, b)
-        return (dot >= c) | ~(np.any(a != 0, axis=-1) & np.any(b != 0, axis=-1))
+    def joined(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+        ok = np.einsum("...k,...k->...", a, b) >= c
+        ok |= ~(np.any(a != 0, axis=-1) & np.any(b != 0, axis=-1))
+        if join_convex:
+            ok |= np.einsum("...k,...k->...", a - b, pa - pb) > 0
+        return ok
 
     horiz = np.ones((h, w - 1), bool)
-    horiz[:, 1:-1] = joined(n[:, :-3], n[:, 3:])
+    horiz[:, 1:-1] = joined(n[:, :-3], n[:, 3:], P[:, :-3], P[:, 3:])
     vert = np.ones((h - 1, w), bool)
-    vert[1:-1] = joined(n[:-3], n[3:])
+    vert[1:-1] = joined(n[:-3], n[3:], P[:-3], P[3:])
     return horiz, vert
 
 

@@ -200,7 +200,7 @@ class Screener:
         ref = w.reference_if_computed
         self.last_reference = ref
         if ref is not None and context is not None:
-            moving = ((w.dynamic & ~ref.inliers) | ref.moved) & (ref.map_index >= 0)
+            moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
             if moving.any():
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
         region = w.grid_region

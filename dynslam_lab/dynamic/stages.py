@@ -457,12 +457,14 @@ def flow_stage(w: FrameWork) -> None:
 def temporal_stage(w: FrameWork) -> None:
     """Keypoints matched to map points seen moving; the previous region carried into this frame."""
     ref = w.reference()
-    col = np.zeros(w.n, bool)
-    has = ref.map_index >= 0
-    if has.any() and w.context is not None:
-        ids = w.context.map_ids[ref.map_index[has]]
-        col[np.flatnonzero(has)] = w.memory.moving_points.contains(ids)
-        col |= ref.moved
+    # a point seen moving that still misses its map point; a surface moving against the rest; a
+    # keypoint far from its map point that another test also finds moving
+    fresh = np.zeros(w.n, bool)
+    for name in ("epipolar", "multiview", "multiframe"):
+        fresh |= w.stages.get(name, fresh)
+    with np.errstate(invalid="ignore"):
+        still_off = ref.residual_px > w.config.reference.inlier_px
+    col = (ref.known_moving & still_off) | ref.surface_moved | (ref.moved & fresh)
     w.stages["temporal"] = col
     prev = w.prev
     if prev is None or prev.region is None or prev.T_w_c is None or ref.T_c_w is None:

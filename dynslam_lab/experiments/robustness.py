@@ -171,8 +171,8 @@ def _filters(onnx_model: str | Path | None, only=None) -> dict[str, tuple[str, s
 
 
 def run_robustness(sequences, outdir: str | Path, config: Config | None = None, onnx_model: str | Path | None = None,
-                   filters=None, max_frames: int | None = None, loop_closing: bool = True, progress: bool = True,
-                   resume: bool = True) -> pd.DataFrame:
+                   filters=None, max_frames: int | None = None, loop_closing: bool = True, progress: bool = False,
+                   resume: bool = True, on_run=None) -> pd.DataFrame:
     """Run every filter (and the reference without movers) on every sequence; write the tables.
 
     Parameters
@@ -186,6 +186,8 @@ def run_robustness(sequences, outdir: str | Path, config: Config | None = None, 
     max_frames : frames per run (None = all).
     loop_closing : run the loop closer (its accepted loops are counted).
     resume : reuse the ``row.json`` of runs already finished with the same configuration.
+    progress : a progress bar per run.
+    on_run : called as ``on_run(row)`` after each run (a dict of the row), e.g. to print a line.
 
     Returns
     -------
@@ -221,6 +223,8 @@ def run_robustness(sequences, outdir: str | Path, config: Config | None = None, 
                 _write_text(row_path, json.dumps({"key": key, "row": row}, indent=1))
             rows.append({"sequence": spec.name, "filter": label, "detector": det, "coverage_mean": cov_mean,
                          "coverage_max": cov_max, **row})
+            if on_run is not None:
+                on_run(rows[-1])
     df = _derived(pd.DataFrame(rows))
     _write_text(outdir / "robustness.csv", df.to_csv(index=False))
     _write_text(outdir / "robustness.md", robustness_markdown(df))

@@ -81,7 +81,7 @@ def test_map_reference_pose_matches_descriptors_refines_and_reports_moved_points
     t_err, r_err = _pose_error(ref.T_c_w, T_TRUE)
     assert t_err < 1e-3 and r_err < 0.02
     assert np.array_equal(ref.map_index, np.arange(len(X_w)))  # every keypoint found its own map point
-    assert ref.moved[:60].all() and not ref.moved[60:].any()
+    assert ref.moved[:60].all() and not ref.moved[60:].any() and not ref.surface_moved.any()
     assert not ref.inliers[:60].any() and ref.inliers[60:].all()
 
 
@@ -93,10 +93,10 @@ def test_map_reference_pose_without_prediction_or_map():
     empty = ScreeningContext(T_TRUE, {}, descriptors=desc, octave=np.zeros(len(uv), np.int64))
     ref = map_reference_pose(empty, uv, CAM)
     assert ref.source == "prediction" and np.array_equal(ref.T_c_w, T_TRUE)
-    # map points seen moving are left out of the matching
+    # map points seen moving are matched but never inliers of the refinement
     ctx = _context(X_w, desc, T_TRUE, uv, desc)
     ref = map_reference_pose(ctx, uv, CAM, exclude_ids=ctx.map_ids[:100])
-    assert (ref.map_index[:100] == -1).all() and (ref.map_index[100:] >= 0).all()
+    assert (ref.map_index >= 0).all() and not ref.inliers[:100].any() and ref.inliers[100:].all()
 
 
 def test_a_surface_that_moved_against_the_rest_is_found():

@@ -170,3 +170,32 @@ def test_moving_map_points_and_history():
     assert [f.index for f in h.with_pose((1, 2))] == [3]  # frame 4 has no pose: the nearest older one stands in
     with pytest.raises(ValueError):
         TemporalConfig(dilate_cells=-1)
+
+
+def test_convex_edges_keep_an_object_whole_and_concave_ones_cut_it_from_the_floor():
+    """A box seen from above its top face: top and front meet at a convex edge (joined); the box and the
+    floor meet at a concave one (cut)."""
+    h, w = GRID.height, GRID.width
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    ry, rx = (v - GRID.cy) / GRID.fy, (u - GRID.cx) / GRID.fx
+    cam_h = 1.2  # camera 1.2 m above the floor, looking level
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(ry > 0, cam_h / ry, 8.0)
+        z = np.minimum(z, 8.0)
+        # box: x in [-0.3, 0.3], front face at z = 2.5, back at z = 3.0, top at 0.6 m above the floor (y = 0.6)
+        z_front = np.where((np.abs(rx * 2.5) <= 0.3) & (ry * 2.5 >= 0.6) & (ry * 2.5 <= cam_h), 2.5, np.inf)
+        z_top = np.where(ry > 0, 0.6 / ry, np.inf)
+        top = (z_top >= 2.5) & (z_top <= 3.0) & (np.abs(rx * z_top) <= 0.3)
+        z_top = np.where(top, z_top, np.inf)
+    zz = np.minimum(np.minimum(z, z_front), z_top).astype(np.float32)
+    front, topm = np.isfinite(z_front) & (z_front <= zz + 1e-6), top & (z_top <= zz + 1e-6)
+    _, labels = surface_segments(zz, GRID, 0.04, 35.0)
+    inner_f = front & np.roll(front, 2, 0) & np.roll(front, -2, 0) & np.roll(front, 2, 1) & np.roll(front, -2, 1)
+    inner_t = topm & np.roll(topm, 1, 0) & np.roll(topm, -1, 0) & np.roll(topm, 2, 1) & np.roll(topm, -2, 1)
+    box = np.unique(np.r_[labels[inner_f], labels[inner_t]])
+    assert len(box) == 1 and box[0] > 0  # top and front: one object
+    floor = (labels > 0) & ~front & ~topm & (zz < 7.5)
+    assert not np.isin(labels[floor], box).any()
+    _, split = continuity_components(zz > 0, (depth_continuity(zz, 0.04)[0] & crease_continuity(zz, GRID, 35.0, False)[0],
+                                              depth_continuity(zz, 0.04)[1] & crease_continuity(zz, GRID, 35.0, False)[1]))
+    assert len(np.unique(np.r_[split[inner_f], split[inner_t]])) == 2  # without the convexity rule the edge cuts it
