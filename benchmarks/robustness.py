@@ -4,7 +4,7 @@ beside the same camera path without movers; worst case and typical per filter (d
 Usage::
 
     python benchmarks/robustness.py                        # STRESS_SUITE + office walking presets, 300 frames
-    python benchmarks/robustness.py --frames 120 --sequences boxes_xyz,walking_rpy
+    python benchmarks/robustness.py --max-frames 150 --sequences boxes_xyz,walking_rpy
     python benchmarks/robustness.py --model /work/shared/data/models/yolox_nano.onnx   # adds full+onnx
 
 Writes OUTDIR/robustness.csv, robustness.md (the tables) and robustness.png (ATE per sequence and
@@ -24,7 +24,8 @@ OFFICE = ("walking_xyz", "walking_rpy", "walking_halfsphere", "walking_static", 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sequences", default=None, help="comma-separated names (default: STRESS_SUITE + office presets)")
-    ap.add_argument("--frames", type=int, default=300, help="frames per sequence (default 300)")
+    ap.add_argument("--frames", type=int, default=300, help="frames rendered per sequence (default 300)")
+    ap.add_argument("--max-frames", type=int, default=None, help="frames run per sequence (default all rendered)")
     ap.add_argument("--out", default="runs/robustness", help="output folder (default runs/robustness)")
     ap.add_argument("--model", default=None, help="an ONNX detector for the full+onnx filter")
     ap.add_argument("--filters", default=None, help="comma-separated filter labels (default all)")
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
               f"lost {r['lost']} loops {r['loops']}  {r['ms_per_frame']:.0f} ms/frame", flush=True)
 
     run_robustness(specs, args.out, onnx_model=args.model, filters=only, loop_closing=not args.no_loop,
-                   resume=not args.fresh, on_run=line)
+                   resume=not args.fresh, on_run=line, max_frames=args.max_frames)
     print((Path(args.out) / "robustness.md").read_text())
     print(f"wrote {args.out}/robustness.csv, robustness.md, robustness.png ({time.time() - t0:.0f} s)")
     return 0
