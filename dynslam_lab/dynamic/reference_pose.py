@@ -37,8 +37,9 @@ and the fallbacks are ours):
    is left out in turn and the pose refined on the others; a surface whose matches then miss
    their map points by much more than the others do has moved (a box mapped while it stood
    still and now pushed away). With two such groups the evidence is symmetric (the box moved,
-   or everything else did), and the surface counts as moving only when leaving it out brings
-   the pose closer to the constant-velocity prediction. Surfaces are joined across convex edges
+   or everything else did): a surface with less than half the matches is the mover (the static
+   majority); a larger one only when leaving it out brings the pose closer to the
+   constant-velocity prediction. Surfaces are joined across convex edges
    (an object stays whole) and cut at concave ones (from the floor it stands on). Its matches
    leave the final refinement and mark its keypoints.
 4. **Fallbacks.** Fewer than ``min_inliers`` matches: the prediction itself when there is one
@@ -245,9 +246,10 @@ def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K:
     ``T_c_w``, on the matches ``use``). The surface is inconsistent when its median error (in units of
     ``sigma``) under that pose exceeds both ``segment_min_px`` and ``segment_ratio`` times the median of
     the others. Two groups that disagree are symmetric (is the box moving, or everything but the
-    box?); the constant-velocity prediction ``T_pred`` breaks the tie: a surface is moving only when
-    the pose without it lies closer to the prediction than the pose with it. The worst such surface
-    is removed and the search repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
+    box?): a surface holding less than half the matches is moving (the static majority); one holding
+    more only when the pose without it lies closer to the constant-velocity prediction ``T_pred``
+    than the pose with it. The worst such surface (minorities first) is removed and the search
+    repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
     """
     out = np.zeros(len(X_w), bool)
     use = use.copy()
@@ -256,9 +258,9 @@ def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K:
         labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
         total = int(use.sum())
         cand = labs[(counts >= config.segment_min_matches) & (total - counts >= config.segment_min_matches)]
-        best, best_score, best_T = None, 1.0, None
+        best, best_key, best_T = None, None, None
         gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
-        for lab in cand:
+        for lab, count in zip(cand, counts[np.isin(labs, cand)]):
             on = (labels == lab) & use
             rest = use & ~on
             T_l = refine_pose(T, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
@@ -267,10 +269,12 @@ def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K:
             bound = max(config.segment_min_px, config.segment_ratio * r_rest)
             if r_on <= bound:
                 continue
-            if T_pred is not None and _pose_gap_px(T_l, T_pred, X_w[use], K) >= gap_with:
-                continue  # leaving it out moves the pose away from the prediction: the rest moves, not it
-            if r_on / bound > best_score:
-                best, best_score, best_T = lab, r_on / bound, T_l
+            minority = 2 * count < total
+            if not minority and (T_pred is None or _pose_gap_px(T_l, T_pred, X_w[use], K) >= gap_with):
+                continue  # most of the map would be moving, and the prediction does not say so
+            key = (minority, r_on / bound)  # the static majority first, then the prediction
+            if best_key is None or key > best_key:
+                best, best_key, best_T = lab, key, T_l
         if best is None:
             break
         on = labels == best
