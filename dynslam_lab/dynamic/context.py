@@ -41,7 +41,8 @@ class ScreeningContext:
     Attributes
     ----------
     T_c_w_pred : ``(4, 4)`` predicted world -> camera pose of this frame (ORB-SLAM2's constant
-        velocity model, Mur-Artal & Tardos 2017), or None (first frames, after a lost frame).
+        velocity model, Mur-Artal & Tardos 2017; the last pose while the velocity is unknown), or None
+        (before the first tracked frame, after a lost frame).
     poses : timestamp (s) -> ``(4, 4)`` ``T_w_c`` of earlier tracked frames (as corrected by local
         BA and loop closing so far); the screener pairs them with the images it kept.
     map_ids : ``(M,)`` int64 ids of the local map points (stable for a run, never reused).

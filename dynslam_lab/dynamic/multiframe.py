@@ -44,7 +44,9 @@ its depth, and a mover that starts slowly has moved 2-3 cm (6 px at 2 m) after 8
 in any one. Each keypoint with depth is predicted into that frame as if static; pyramidal LK starts
 at the prediction (``OPTFLOW_USE_INITIAL_FLOW``) and is checked forward-backward; where the older
 frame's depth agrees with the prediction (the point was visible then), a keypoint found more than
-``reprojection_px`` from its prediction has moved (ours).
+``reprojection_px`` from its prediction has moved (ours), provided its displacement against the previous
+frame points the same way by at least ``direction_min_px`` and a quarter of its per-frame share: a mover
+keeps its direction, LK locked on the wrong repeat of a pattern does not.
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ class MultiFrameConfig:
     offsets: tuple[int, ...] = (1, 2, 4, 8, 16)  # earlier frames judged against, in frames back; ours (DynaSLAM: 5 keyframes)
     lk_offset: int = 8  # the earlier frame of the 2-D test (frames back; the nearest kept one with a pose); 0 = off; ours
     reprojection_px: float = 3.0  # 2-D test: keypoint this far from where a static point would be (px); Chang et al. 2021: 4 (one frame)
+    direction_min_px: float = 0.25  # ... and moved at least this far the same way since the previous frame (px); ours
     depth_m: float = 0.1  # free-space margin tau (m); Chang et al. 2021: 0.1 (DynaSLAM's tau_z 0.4 on TUM)
     depth_quadratic: float = 0.01  # tau grows as depth_quadratic * z^2 (1/m); ours, as in MultiViewConfig
     min_filter_px: int = 2  # radius of the minimum filter on the earlier frame's depth (full-res px); ours
@@ -79,8 +82,8 @@ class MultiFrameConfig:
             raise ValueError("MultiFrameConfig: depth_m must be > 0 (m) and depth_quadratic >= 0 (1/m)")
         if self.min_filter_px < 0 or self.factor < 1 or self.border_px < 0:
             raise ValueError("MultiFrameConfig: min_filter_px >= 0, factor >= 1 and border_px >= 0 required")
-        if self.lk_offset < 0 or self.reprojection_px <= 0:
-            raise ValueError("MultiFrameConfig: lk_offset must be >= 0 (frames) and reprojection_px > 0 (px)")
+        if self.lk_offset < 0 or self.reprojection_px <= 0 or self.direction_min_px < 0:
+            raise ValueError("MultiFrameConfig: lk_offset must be >= 0 (frames), reprojection_px > 0 and direction_min_px >= 0 (px)")
 
     @property
     def history_length(self) -> int:

@@ -250,6 +250,13 @@ def _cached(past: PastFrame, key: str, fn):
     return past.cache[key]
 
 
+def _cached_frame(w: FrameWork, key: str, fn):
+    """A product of the current frame, computed once and kept with it for the next frames."""
+    if key not in w._cache:
+        w._cache[key] = fn()
+    return w._cache[key]
+
+
 def _past_small_depth(past: PastFrame, factor: int) -> np.ndarray:
     if past.small_depth is None:
         past.small_depth = reduce_depth(past.depth, factor)
@@ -419,8 +426,14 @@ def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, o
     d_j = _cached(past, "depth_min", lambda: eroded_depth(past.depth, cfg.min_filter_px))
     zm = depth_at(d_j, np.nan_to_num(uv_j, nan=-1.0))
     tau = np.maximum(cfg.depth_m, cfg.depth_quadratic * z_j**2)
+    # keypoints whose LK window straddles a depth edge are left out: their depth may belong to the other
+    # layer, and a wrong depth makes a parallax error that grows with the baseline like a motion would
+    r = w.config.lk.win_size // 2
+    z_lo = depth_at(_cached_frame(w, "depth_min_lk", lambda: eroded_depth(w.frame.depth, r)), w.uv[ok])
+    z_hi = depth_at(_cached_frame(w, "depth_max_lk", lambda: -eroded_depth(-w.frame.depth, r)), w.uv[ok])
     with np.errstate(invalid="ignore"):
-        seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau)
+        flat = (z_hi - z_lo) <= np.maximum(cfg.depth_m, cfg.depth_quadratic * w.z[ok] ** 2)
+        seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau) & flat
     idx = np.flatnonzero(ok)[seen]
     if len(idx) == 0:
         return moved
@@ -428,10 +441,22 @@ def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, o
     uv_lk, tracked = guided_lk(w.gray, past.gray, w.uv[idx], uv_j[seen], w.config.lk)
     w.timings["lk_older"] = _ms(t0)
     err = np.full(n, np.nan)
-    err[idx[tracked]] = np.linalg.norm(uv_lk[tracked] - uv_j[seen][tracked], axis=1)
+    r_old = np.full((n, 2), np.nan)
+    r_old[idx[tracked]] = uv_lk[tracked] - uv_j[seen][tracked]
+    err = np.linalg.norm(r_old, axis=1)
     w.values["older_reprojection_px"] = err
     with np.errstate(invalid="ignore"):
         moved = err > cfg.reprojection_px
+    # a mover keeps its direction: its displacement against the previous frame points the same way and
+    # carries a share of it; LK locked on the wrong repeat of a pattern in the older frame does not
+    pairs, prev = w.pairs(), w.prev
+    if moved.any() and pairs is not None and prev is not None and prev.T_w_c is not None:
+        uv_p_hat, _ = w.camera.project(transform_points(se3_inv(prev.T_w_c), X_w))
+        r_prev = np.full((n, 2), np.nan)
+        r_prev[ok] = pairs[0][ok] - uv_p_hat
+        with np.errstate(invalid="ignore", divide="ignore"):
+            along = np.einsum("ij,ij->i", r_prev, r_old) / err
+            moved &= along > np.maximum(cfg.direction_min_px, err / (4.0 * max(cfg.lk_offset, 1)))
     return moved
 
 

@@ -176,9 +176,9 @@ class System:
         """What the screener may use before tracking (``dynamic.context``): the constant-velocity
         prediction, the poses of the last tracked frames (by timestamp) and the local map points."""
         tr = self.tracker
-        T_pred = None
-        if tr.state in (TrackState.OK, TrackState.RELOCALIZED) and tr.velocity is not None and tr.last is not None:
-            T_pred = tr.velocity @ se3_inv(tr.last.T_w_c)
+        T_pred = None  # constant velocity; constant position while the velocity is unknown (frame 1, after relocalisation)
+        if tr.state in (TrackState.OK, TrackState.RELOCALIZED) and tr.last is not None and tr.last.T_w_c is not None:
+            T_pred = se3_inv(tr.last.T_w_c) if tr.velocity is None else tr.velocity @ se3_inv(tr.last.T_w_c)
         poses = {ts: self.map.keyframe_pose(ref) @ T_ref_c for ts, ref, T_ref_c in self._anchors[-self.screener.history_length:]}
         kf_ids = [k for k in tr.local_kf_ids if k in self.map.keyframes]
         ids = np.concatenate([self.map.keyframes[k].map_point_ids for k in kf_ids]) if kf_ids else np.zeros(0, np.int64)
