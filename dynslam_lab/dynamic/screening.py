@@ -125,6 +125,9 @@ class Screener:
         cfg = self.config
         self.memory = ScreenerMemory(FrameHistory(cfg.multiframe.history_length + 1),
                                      MovingMapPoints(cfg.temporal.max_moving_points), cfg.depth_ransac.seed)
+        #: the reference pose (:class:`~dynslam_lab.dynamic.reference_pose.ReferencePose`) the last frame was
+        #: judged against, or None
+        self.last_reference = None
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
@@ -198,7 +201,7 @@ class Screener:
         """Keep this frame for the next ones; remember the map points matched to dynamic keypoints."""
         mem = self.memory
         ref = w.reference_if_computed
-        self.last_reference = ref
+        self.last_reference = ref  # for notebooks and diagnostics: the reference pose of the last frame
         if ref is not None and context is not None:
             moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
             if moving.any():

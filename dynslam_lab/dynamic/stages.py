@@ -250,11 +250,17 @@ def _cached(past: PastFrame, key: str, fn):
     return past.cache[key]
 
 
-def _cached_frame(w: FrameWork, key: str, fn):
-    """A product of the current frame, computed once and kept with it for the next frames."""
-    if key not in w._cache:
-        w._cache[key] = fn()
-    return w._cache[key]
+def _window_span(depth: np.ndarray, uv: np.ndarray, radius: int) -> np.ndarray:
+    """``(M,)`` max - min depth over the ``(2 r + 1)^2`` window around each pixel ``uv (M, 2)``; inf where a
+    pixel of the window has no depth or lies off the image (one gather of ``M (2 r + 1)^2`` values)."""
+    h, w = depth.shape
+    d = np.arange(-radius, radius + 1)
+    rows = np.rint(uv[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None]
+    cols = np.rint(uv[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :]
+    inside = ((rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)).all(axis=(1, 2))
+    z = depth[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].reshape(len(uv), -1)
+    span = z.max(axis=1) - z.min(axis=1)
+    return np.where(inside & (z > 0).all(axis=1), span, np.inf)
 
 
 def _past_small_depth(past: PastFrame, factor: int) -> np.ndarray:
@@ -427,12 +433,11 @@ def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, o
     zm = depth_at(d_j, np.nan_to_num(uv_j, nan=-1.0))
     tau = np.maximum(cfg.depth_m, cfg.depth_quadratic * z_j**2)
     # keypoints whose LK window straddles a depth edge are left out: their depth may belong to the other
-    # layer, and a wrong depth makes a parallax error that grows with the baseline like a motion would
-    r = w.config.lk.win_size // 2
-    z_lo = depth_at(_cached_frame(w, "depth_min_lk", lambda: eroded_depth(w.frame.depth, r)), w.uv[ok])
-    z_hi = depth_at(_cached_frame(w, "depth_max_lk", lambda: -eroded_depth(-w.frame.depth, r)), w.uv[ok])
+    # layer, and a wrong depth makes a parallax error that grows with the baseline like a motion would.
+    # "Flat": every pixel of the LK window has depth, within tau of the others.
+    span = _window_span(w.frame.depth, w.uv[ok], w.config.lk.win_size // 2)
     with np.errstate(invalid="ignore"):
-        flat = (z_hi - z_lo) <= np.maximum(cfg.depth_m, cfg.depth_quadratic * w.z[ok] ** 2)
+        flat = span <= np.maximum(cfg.depth_m, cfg.depth_quadratic * w.z[ok] ** 2)
         seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau) & flat
     idx = np.flatnonzero(ok)[seen]
     if len(idx) == 0:
