@@ -99,13 +99,16 @@ class EpipolarResult:
     used: np.ndarray
 
 
-def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()):
+def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig(),
+             guess: np.ndarray | None = None):
     """Match current keypoints into the previous image with pyramidal LK.
 
     Parameters
     ----------
     prev_gray, gray : ``(H, W)`` uint8 previous and current images.
     uv : ``(N, 2)`` current keypoint pixels.
+    guess : ``(N, 2)`` where to start the search in the previous image (``OPTFLOW_USE_INITIAL_FLOW``; the
+        multi-frame 2-D test starts at the static prediction), or None (at ``uv``).
 
     Returns
     -------
@@ -121,8 +124,16 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, config.max_iterations, config.epsilon)
     win = (config.win_size, config.win_size)
     p0 = uv.astype(np.float32).reshape(-1, 1, 2)
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, None, winSize=win, maxLevel=config.max_level, criteria=crit)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    if guess is None:
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    else:
+        start = np.asarray(guess, np.float32).reshape(-1, 1, 2).copy()
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, start, winSize=win, maxLevel=config.max_level,
+                                              criteria=crit, flags=flags)
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, p0.copy(), winSize=win, maxLevel=config.max_level,
+                                               criteria=crit, flags=flags)
     fb = np.linalg.norm(p0b.reshape(-1, 2) - uv, axis=1)
     h, w = gray.shape
     q = p1.reshape(-1, 2).astype(np.float64)

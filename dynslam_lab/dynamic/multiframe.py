@@ -58,7 +58,7 @@ import numpy as np
 
 from ..geometry.se3 import se3_inv
 
-__all__ = ["MultiFrameConfig", "FreeSpace", "free_space_test", "eroded_depth", "grid_points", "vanished_test", "guided_lk"]
+__all__ = ["MultiFrameConfig", "FreeSpace", "free_space_test", "eroded_depth", "grid_points", "vanished_test"]
 
 
 @dataclass(frozen=True)
@@ -210,29 +210,3 @@ def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, conf
         seen[j, idx[hit]] = True
     return seen.sum(axis=0).reshape(h, w)
 
-
-def guided_lk(gray: np.ndarray, ref_gray: np.ndarray, uv: np.ndarray, guess: np.ndarray, config) -> tuple[np.ndarray, np.ndarray]:
-    """Pyramidal LK of keypoints ``uv (M, 2)`` of ``gray`` into ``ref_gray``, started at ``guess (M, 2)``
-    and checked forward-backward (``config``: :class:`~dynslam_lab.dynamic.epipolar.LkConfig`).
-
-    Returns ``(uv_ref (M, 2), ok (M,))``; ``nan`` rows where tracking failed.
-    """
-    m = len(uv)
-    if m == 0:
-        return np.zeros((0, 2)), np.zeros(0, bool)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, config.max_iterations, config.epsilon)
-    win = (config.win_size, config.win_size)
-    p0 = np.asarray(uv, np.float32).reshape(-1, 1, 2)
-    g = np.asarray(guess, np.float32).reshape(-1, 1, 2).copy()
-    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, ref_gray, p0, g, winSize=win, maxLevel=config.max_level, criteria=crit,
-                                          flags=flags)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(ref_gray, gray, p1, p0.copy(), winSize=win, maxLevel=config.max_level,
-                                           criteria=crit, flags=flags)
-    fb = np.linalg.norm(p0b.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)
-    h, w = ref_gray.shape
-    q = p1.reshape(-1, 2).astype(np.float64)
-    ok = (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < config.fb_max_px)
-    ok &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
-    q[~ok] = np.nan
-    return q, ok

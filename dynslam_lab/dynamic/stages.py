@@ -41,7 +41,7 @@ from .flow import flow_regions
 from .geometric_rule import level_rule_verdict
 from .history import FrameHistory, PastFrame, reduce_depth
 from .motion_probability import restore_by_motion_probability
-from .multiframe import eroded_depth, free_space_test, grid_points, guided_lk, vanished_test
+from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
 from .regions import cells_at, depth_continuity, grow_regions, splat, supported_regions, surface_segments
@@ -443,7 +443,7 @@ def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, o
     if len(idx) == 0:
         return moved
     t0 = time.perf_counter()
-    uv_lk, tracked = guided_lk(w.gray, past.gray, w.uv[idx], uv_j[seen], w.config.lk)
+    uv_lk, tracked = track_lk(past.gray, w.gray, w.uv[idx], w.config.lk, guess=uv_j[seen])
     w.timings["lk_older"] = _ms(t0)
     err = np.full(n, np.nan)
     r_old = np.full((n, 2), np.nan)

@@ -7,13 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from dynslam_lab.dynamic.epipolar import LkConfig
+from dynslam_lab.dynamic.epipolar import LkConfig, track_lk
 from dynslam_lab.dynamic.multiframe import (
     MultiFrameConfig,
     eroded_depth,
     free_space_test,
     grid_points,
-    guided_lk,
     vanished_test,
 )
 from dynslam_lab.geometry.se3 import make_pose, se3_inv, transform_points
@@ -94,7 +93,7 @@ def test_grid_points_back_project_the_cells_with_depth():
     assert np.allclose(uv, [[20, 10], [5, 30]], atol=1e-4) and np.allclose(z, [2, 3])
 
 
-def test_guided_lk_finds_static_points_at_the_prediction_and_a_moved_patch_away_from_it():
+def test_lk_started_at_the_prediction_finds_static_points_there_and_a_moved_patch_away_from_it():
     tex = texture(CAM.height, CAM.width, seed=5)
     moved = tex.copy()
     moved[200:280, 300:380] = np.roll(tex[200:280, 300:380], 6, axis=1)  # a patch that moved 6 px right
@@ -103,7 +102,7 @@ def test_guided_lk_finds_static_points_at_the_prediction_and_a_moved_patch_away_
     # the current image is `moved`; the earlier frame saw everything at +(3, -2), except the patch's content
     uv = np.array([[150.0, 120.0], [450.0, 380.0], [340.0, 240.0]])
     guess = uv + [3.0, -2.0]  # the static prediction
-    q, ok = guided_lk(moved, earlier, uv, guess, LkConfig())
+    q, ok = track_lk(earlier, moved, uv, LkConfig(), guess=guess)
     assert ok[:2].all()
     assert np.linalg.norm(q[:2] - guess[:2], axis=1).max() < 0.2
     assert ok[2] and np.linalg.norm(q[2] - guess[2]) == pytest.approx(6.0, abs=0.5)
