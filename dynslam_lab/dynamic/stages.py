@@ -570,6 +570,8 @@ def _geometric(w: FrameWork, on: set[str]) -> np.ndarray:
     if vote == "auto":  # "any" only when the two-frame tests are the only geometric signal
         vote = "both" if on & {"semantic", "multiframe", "regions"} else "any"
     cols = [c for _, c in w.votes]
+    if vote == "both" and len(cols) < 2:
+        return np.zeros(w.n, bool)  # "both" needs both tests: one alone (the other could not run) does not decide
     geometric = np.logical_and.reduce(cols) if vote == "both" else np.logical_or.reduce(cols)
     dets = w.detections
     if "semantic" in on and cfg.geometry_mask_margin_px > 0 and dets is not None and w.sem.dynamic_detections.any():
