@@ -128,6 +128,8 @@ class Screener:
         #: the reference pose (:class:`~dynslam_lab.dynamic.reference_pose.ReferencePose`) the last frame was
         #: judged against, or None
         self.last_reference = None
+        #: the last frame's reduced-grid evidence (``FrameWork.grid_evidence``; ``plots.draw_grid`` shows it)
+        self.last_grid: dict[str, np.ndarray] = {}
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
@@ -202,6 +204,7 @@ class Screener:
         mem = self.memory
         ref = w.reference_if_computed
         self.last_reference = ref  # for notebooks and diagnostics: the reference pose of the last frame
+        self.last_grid = w.grid_evidence()
         if ref is not None and context is not None:
             moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
             if moving.any():

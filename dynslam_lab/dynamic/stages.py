@@ -234,6 +234,19 @@ class FrameWork:
         """Earlier frames with a pose at the configured offsets (newest first)."""
         return [f for f in self.memory.history.with_pose(self.config.multiframe.offsets) if f.depth.shape == self.shape]
 
+    def grid_evidence(self) -> dict[str, np.ndarray]:
+        """The reduced-grid products of the geometry stages that ran (for figures): ``depth``, ``fresh``
+        evidence, cells confirmed ``static``, ``vanished`` cells, the temporal ``prior`` and the grown ``region``."""
+        out: dict[str, np.ndarray] = {}
+        if "reduce_depth" in self._cache:
+            out["depth"] = self._cache["reduce_depth"]
+            out["fresh"] = _union(self.fresh_cells, out["depth"].shape)
+        for key, value in (("static", self.static_cells), ("vanished", self.vanished_cells), ("prior", self.prior_cells),
+                           ("region", self.grid_region)):
+            if value is not None:
+                out[key] = value
+        return out
+
     def past_frame(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> PastFrame:
         """This frame as the memory keeps it for the next ones."""
         past = PastFrame(self.frame.index, float(self.frame.timestamp), self.gray, self.frame.depth,

@@ -191,3 +191,28 @@ def test_geometry_with_the_slam_context_finds_the_person(frames):
     assert {"multiframe", "temporal", "regions"} <= set(tables[-1].stages)
     assert tables[-1].timings_ms["lk"] > 0 and "reference_pose" in tables[-1].timings_ms
     assert s.uses_context and s.history_length == ScreeningConfig().multiframe.history_length + 1
+
+
+def test_the_grid_evidence_of_the_last_frame_is_kept_for_figures(frames):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dynslam_lab.dynamic.plots import REASON_COLOURS, draw_grid, draw_table
+
+    s = build_screener("geometry")
+    for (f, _, _, uv), c in zip(frames, _gt_contexts(frames)):
+        t = s.screen(f, uv, None, context=c)
+    g = s.last_grid
+    assert {"depth", "fresh", "static", "vanished", "region"} <= set(g)
+    assert g["region"].shape == g["depth"].shape == (f.shape[0] // 4, f.shape[1] // 4)
+    # the grown region lies on the moving "person" (a flat rectangle sliding in its own plane: its depth agrees
+    # with the earlier frames away from its edges, so growth from the edges covers part of it)
+    mask = frames[-1][1][::4, ::4]
+    assert (g["region"] & mask).sum() > 0.1 * mask.sum() and (g["region"] & ~mask).sum() < 0.2 * g["region"].sum()
+    assert set(t.reason.astype(str)) <= set(REASON_COLOURS)
+    fig, (a, b) = plt.subplots(1, 2)
+    draw_grid(a, f.rgb, g["fresh"], g["static"], g["region"], g["vanished"], "grid")
+    draw_table(b, f.rgb, t, "table")
+    plt.close(fig)
