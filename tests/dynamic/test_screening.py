@@ -209,8 +209,14 @@ def test_the_grid_evidence_of_the_last_frame_is_kept_for_figures(frames):
     assert g["region"].shape == g["depth"].shape == (f.shape[0] // 4, f.shape[1] // 4)
     # the grown region lies on the moving "person" (a flat rectangle sliding in its own plane: its depth agrees
     # with the earlier frames away from its edges, so growth from the edges covers part of it)
-    mask = frames[-1][1][::4, ::4]
-    assert (g["region"] & mask).sum() > 0.1 * mask.sum() and (g["region"] & ~mask).sum() < 0.2 * g["region"].sum()
+    m = frames[-1][1]
+    mask = m.reshape(m.shape[0] // 4, 4, m.shape[1] // 4, 4).any(axis=(1, 3))  # cells touching the person
+    # (the scene's depth step between the wall halves at x = 320 stays put while their textures shift: a real
+    # geometric inconsistency, found as such; judged away from it)
+    away = np.ones_like(mask)
+    away[:, 70:90] = False
+    assert (g["region"] & mask).sum() > 0.1 * mask.sum()
+    assert (g["region"] & ~mask & away).sum() < 0.1 * g["region"].sum()
     assert set(t.reason.astype(str)) <= set(REASON_COLOURS)
     fig, (a, b) = plt.subplots(1, 2)
     draw_grid(a, f.rgb, g["fresh"], g["static"], g["region"], g["vanished"], "grid")
