@@ -36,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     get.add_argument("--dest", default="data", help="destination folder (default ./data)")
     get.add_argument("--no-extract", action="store_true", help="keep archives packed")
     get.add_argument("--quiet", action="store_true", help="no progress bar")
+    get.add_argument("--timeout", type=float, default=30.0, metavar="S",
+                     help="seconds to wait for the server's answer and for each block of data (default 30)")
     return p
 
 
@@ -69,7 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "info":
             return _info(args.name)
         if args.command == "get":
-            res = fetch(args.name, args.dest, extract=not args.no_extract, progress=not args.quiet)
+            if not args.timeout > 0:
+                parser.error(f"--timeout must be > 0 seconds, got {args.timeout}")
+            res = fetch(args.name, args.dest, extract=not args.no_extract, progress=not args.quiet, timeout=args.timeout)
             print(res.message)
             return 0
     except (CatalogError, DownloadError, UnsafeArchiveError, ValueError, OSError) as exc:

@@ -19,6 +19,10 @@ Sources
 * NanoDet-Plus ONNX models, RangiLyu/nanodet GitHub release ``v1.0.0-alpha-1`` (Apache-2.0).
   The original NanoDet-m has no ONNX release asset (its v0.0.1 release ships ncnn files,
   the PyTorch weights are on Google Drive): its entry prints the export command instead.
+* ORB-SLAM2's ORB vocabulary ``ORBvoc.txt.tar.gz`` (DBoW2 text format, 10^6 words; GPL-3.0 with
+  ORB-SLAM2), from the ``Vocabulary/`` folder of the official raulmur/ORB_SLAM2 repository (the
+  project publishes no release assets; its build script extracts this file). Import it with
+  ``dynslam vocab import DEST/ORBvoc.txt --out orbvoc.npz``.
 * Ultralytics YOLOv8 / YOLO11 (AGPL-3.0): no official ONNX download; the entry prints the
   documented export command ``yolo export model=NAME.pt format=onnx``.
 """
@@ -44,6 +48,7 @@ BASE_URLS: dict[str, str] = {
     "bonn": "https://www.ipb.uni-bonn.de/html/projects/rgbd_dynamic2019/",
     "yolox": "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/",
     "nanodet": "https://github.com/RangiLyu/nanodet/releases/download/v1.0.0-alpha-1/",
+    "orbslam2": "https://github.com/raulmur/ORB_SLAM2/raw/master/",
 }
 
 
@@ -125,6 +130,11 @@ _NANODET_M_NOTE = (
     "NanoDet checkout: `python tools/export_onnx.py --cfg_path CONFIG --model_path "
     "nanodet_m.ckpt`, or use nanodet_plus_m_320 (downloadable)."
 )
+_ORBVOC_LICENCE = "GPL-3.0 (ORB-SLAM2, Mur-Artal and Tardos 2017; DBoW2 vocabulary format)"
+_ORBVOC_NOTE = (
+    "ORB-SLAM2's ORB vocabulary (ORBvoc.txt, DBoW2 text, k=10 L=6); extracted into DEST, then "
+    "`dynslam vocab import DEST/ORBvoc.txt --out orbvoc.npz` (about 1 minute)"
+)
 _ULTRALYTICS_NOTE = (
     "no official ONNX download; export it yourself (pip install ultralytics): "
     "`yolo export model={stem}.pt format=onnx`{extra}. Ultralytics weights are AGPL-3.0: "
@@ -148,6 +158,7 @@ def _rows():
         note = f"NanoDet-Plus-m COCO detector, input {res}x{res}"
         yield f"nanodet_plus_m_{res}", "model", "nanodet", f"nanodet-plus-m_{res}.onnx", _NANODET_LICENCE, note
     yield "nanodet_m", "export", "", "nanodet_m.onnx", _NANODET_LICENCE, _NANODET_M_NOTE
+    yield "orbvoc", "model", "orbslam2", "Vocabulary/ORBvoc.txt.tar.gz", _ORBVOC_LICENCE, _ORBVOC_NOTE
     for stem, extra in (
         ("yolov8n-seg", " (add imgsz=320 for a 320x320 input)"),
         ("yolov8n", ""),

@@ -16,7 +16,10 @@ knows them, against the expected size and SHA-256 (also for a file already on di
 re-run verifies it). A checksum mismatch removes the file (it cannot be resumed into a
 correct one) and raises :class:`ChecksumError`.
 Being offline (DNS failure, refused connection) raises :class:`DownloadError` with
-``cannot reach HOST: are you offline?``.
+``cannot reach HOST: are you offline?``. A server that accepts the connection and then sends
+nothing for ``timeout`` seconds is a different failure and says so: ``HOST did not answer
+within S s`` before the response, ``transfer stalled ... after N bytes`` during it (the part
+file is kept: run again to resume); ``python -m data_fetch get --timeout S`` sets ``S``.
 """
 
 from __future__ import annotations
@@ -132,6 +135,13 @@ def _if_range(meta: dict) -> str | None:
     return meta.get("last_modified")
 
 
+def _stalled(url: str, timeout: float) -> DownloadError:
+    return DownloadError(
+        f"{_host(url)} did not answer within {timeout:g} s (the server accepted the connection, then stalled); "
+        "try again later, or wait longer with --timeout"
+    )
+
+
 def _open(url: str, headers: dict, timeout: float):
     """``urlopen`` with our errors; an HTTPError is returned (not raised) for the caller to judge."""
     request = urllib.request.Request(url, headers=headers)
@@ -140,8 +150,12 @@ def _open(url: str, headers: dict, timeout: float):
     except urllib.error.HTTPError as exc:
         return exc
     except urllib.error.URLError as exc:
+        if isinstance(exc.reason, (socket.timeout, TimeoutError)):
+            raise _stalled(url, timeout) from None
         raise DownloadError(f"cannot reach {_host(url)}: are you offline? ({exc.reason})") from None
-    except (socket.timeout, TimeoutError, ConnectionError) as exc:
+    except (socket.timeout, TimeoutError):
+        raise _stalled(url, timeout) from None
+    except ConnectionError as exc:
         raise DownloadError(f"cannot reach {_host(url)}: are you offline? ({exc})") from None
 
 
@@ -163,7 +177,7 @@ def download(
     size : expected size in bytes, or None.
     sha256 : expected hex SHA-256, or None.
     progress : show a tqdm progress bar (on stderr).
-    timeout : socket timeout per read (s).
+    timeout : seconds to wait for the server's answer and for each block of data (> 0).
 
     Returns
     -------
@@ -178,6 +192,8 @@ def download(
         Size or SHA-256 mismatch, of a new download or of the file already at ``dest``
         (the file is removed).
     """
+    if not timeout > 0:
+        raise ValueError(f"timeout must be > 0 seconds, got {timeout}")
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
     if dest.exists():
@@ -268,8 +284,13 @@ def download(
             with open(part, mode) as fh:
                 while True:
                     try:
-                        block = response.read(CHUNK)
-                    except (http.client.IncompleteRead, ConnectionError, socket.timeout, TimeoutError) as exc:
+                        block = response.read1(CHUNK)  # what has arrived: a stall keeps the bytes before it
+                    except (socket.timeout, TimeoutError):
+                        raise DownloadError(
+                            f"{url}: transfer stalled: no data for {timeout:g} s after {written} bytes; run again to "
+                            f"resume from {part} (or wait longer with --timeout)"
+                        ) from None
+                    except (http.client.IncompleteRead, ConnectionError) as exc:
                         raise DownloadError(
                             f"{url}: transfer interrupted after {written} bytes ({exc.__class__.__name__}); "
                             f"run again to resume from {part}"

@@ -64,7 +64,8 @@ def _write_manifest(dest: Path, manifest: dict) -> None:
     tmp.replace(dest / MANIFEST)
 
 
-def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: bool = True) -> FetchResult:
+def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: bool = True,
+          timeout: float = 30.0) -> FetchResult:
     """Download catalog entry ``name`` into ``dest`` (and extract it if an archive).
 
     Parameters
@@ -74,6 +75,7 @@ def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: 
         in ``dest/downloads/``; models are written to ``dest/NAME.onnx``.
     extract : extract archives after download.
     progress : show a progress bar.
+    timeout : seconds to wait for the server's answer and for each block of data.
 
     Returns
     -------
@@ -94,7 +96,7 @@ def fetch(name: str, dest: str | Path = "data", extract: bool = True, progress: 
     target = dest / "downloads" / filename if entry.is_archive else dest / filename
     url = url_for(entry)
     try:
-        result = download(url, target, size=entry.size, sha256=known_sha, progress=progress)
+        result = download(url, target, size=entry.size, sha256=known_sha, progress=progress, timeout=timeout)
     except ChecksumError as exc:
         if entry.sha256 is None and known_sha is not None:
             raise ChecksumError(

@@ -9,16 +9,25 @@ global or mutable: pass a config explicitly, and change a value with
 A TOML file overrides any subset of fields, by section::
 
     [tracking]
-    min_inliers = 20
+    min_local_inliers = 20
     [screening.depth_ransac]
     var_threshold = 0.43
+
+Every value is checked when it is loaded: its type against the field's annotation (an integer
+where an integer is expected, a finite number, a list of the right length and element type),
+then its range by the stage's own ``__post_init__`` (negative thresholds, empty ranges); the
+error names the file and the dotted field, e.g. ``my.toml: tracking.min_depth: must be >= 0``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
+import types
+import typing
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -55,11 +64,15 @@ class Config:
 def with_overrides(cfg: Any, overrides: dict[str, Any], where: str = "config") -> Any:
     """Return a copy of dataclass ``cfg`` with nested ``overrides`` applied.
 
-    Unknown keys and values of the wrong type raise ``ValueError`` naming the dotted key.
+    Unknown keys, values of the wrong type (against the field's annotation) and values out of
+    range (the dataclass's ``__post_init__``) raise ``ValueError`` naming the dotted key.
     """
     if not dataclasses.is_dataclass(cfg):
         raise TypeError(f"{where}: expected a dataclass, got {type(cfg).__name__}")
+    if not isinstance(overrides, dict):
+        raise ValueError(f"{where}: expected a table of parameters, got {overrides!r}")
     fields = {f.name: f for f in dataclasses.fields(cfg)}
+    hints = _type_hints(type(cfg))
     changes: dict[str, Any] = {}
     for key, value in overrides.items():
         dotted = f"{where}.{key}"
@@ -71,37 +84,97 @@ def with_overrides(cfg: Any, overrides: dict[str, Any], where: str = "config") -
                 raise ValueError(f"{dotted}: expected a table of parameters, got {value!r}")
             changes[key] = with_overrides(current, value, dotted)
             continue
-        changes[key] = _coerce(current, value, dotted)
-    return dataclasses.replace(cfg, **changes)
+        hint = hints.get(key)
+        value = _coerce(current, value, dotted) if hint is None else _check(value, hint, dotted)
+        if isinstance(current, dict) and isinstance(value, dict):
+            value = {**current, **value}
+        changes[key] = value
+    try:
+        return dataclasses.replace(cfg, **changes)
+    except (ValueError, TypeError) as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith(where) else f"{where}: {msg}") from None
 
 
-def _coerce(current: Any, value: Any, dotted: str) -> Any:
-    if current is None or value is None:
+@lru_cache(maxsize=None)
+def _type_hints(cls: type) -> dict[str, Any]:
+    """The resolved field annotations of a dataclass (empty when they cannot be resolved)."""
+    try:
+        return typing.get_type_hints(cls)
+    except Exception:  # an annotation naming something the module does not define at run time
+        return {}
+
+
+def _type_name(hint: Any) -> str:
+    return {bool: "true/false", int: "an integer", float: "a number", str: "a string"}.get(hint, str(hint))
+
+
+def _check(value: Any, hint: Any, dotted: str) -> Any:
+    """``value`` checked (and converted: int -> float, list -> tuple) against a type annotation."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint in (tuple, dict):  # bare annotations
+        origin = hint
+    if hint is Any:
         return value
-    if isinstance(current, bool):
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _check(value, a, dotted)
+            except ValueError:
+                pass
+        raise ValueError(f"{dotted}: expected {' or '.join(_type_name(a) for a in args)}, got {value!r}")
+    if hint is bool:
         if not isinstance(value, bool):
             raise ValueError(f"{dotted}: expected true/false, got {value!r}")
         return value
-    if isinstance(current, int) and not isinstance(current, bool):
+    if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{dotted}: expected an integer, got {value!r}")
         return value
-    if isinstance(current, float):
+    if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{dotted}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{dotted}: expected a finite number, got {value!r}")
         return float(value)
-    if isinstance(current, str):
+    if hint is str:
         if not isinstance(value, str):
             raise ValueError(f"{dotted}: expected a string, got {value!r}")
         return value
-    if isinstance(current, tuple):
+    if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ValueError(f"{dotted}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_check(v, args[0], f"{dotted}[{i}]") for i, v in enumerate(value))
+        if args:
+            if len(value) != len(args):
+                raise ValueError(f"{dotted}: expected a list of {len(args)} values, got {value!r}")
+            return tuple(_check(v, a, f"{dotted}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
         return tuple(value)
-    if isinstance(current, dict):
+    if origin is dict:
         if not isinstance(value, dict):
             raise ValueError(f"{dotted}: expected a table, got {value!r}")
-        return {**current, **value}
+        if len(args) == 2:
+            return {_check(k, args[0], dotted): _check(v, args[1], f"{dotted}.{k}") for k, v in value.items()}
+        return dict(value)
+    return value
+
+
+def _coerce(current: Any, value: Any, dotted: str) -> Any:
+    """``value`` checked against the type of the field's current value (fields without a usable annotation)."""
+    if current is None or value is None:
+        return value
+    for t in (bool, int, float, str):
+        if isinstance(current, t):
+            return _check(value, t, dotted)
+    if isinstance(current, tuple):
+        return _check(value, tuple, dotted)
+    if isinstance(current, dict):
+        return _check(value, dict, dotted)
     return value
 
 
@@ -110,10 +183,16 @@ def load_config(path: str | Path, base: Any) -> Any:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: config file not found")
+    raw = path.read_bytes()
     try:
-        data = tomllib.loads(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start}); "
+                         "TOML files must be UTF-8") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: invalid TOML ({exc})") from exc
+        raise ValueError(f"{path}: invalid TOML ({exc})") from None
     try:
         return with_overrides(base, data)
     except ValueError as exc:

@@ -22,6 +22,7 @@ from .camera import PinholeCamera
 from .config import Config
 from .detection import build_detector
 from .dynamic.screening import build_screener, parse_filters
+from .errors import UsageError
 from .slam.loop_closing import LoopCloser
 from .slam.system import System
 
@@ -35,7 +36,7 @@ def _check_combination(filters: str, detector: str, config: Config) -> None:
     stages = parse_filters(filters, config.screening)
     needs = [s for s in stages if s in DETECTOR_STAGES]
     if needs and str(detector).strip().lower() in ("", "none"):
-        raise ValueError(
+        raise UsageError(
             f"--filters {filters!r} runs {needs}, which judge keypoints from detections, but --detector is 'none': "
             "pass --detector oracle|onnx:MODEL|cache:DIR, or use --filters geometry (no detector needed)"
         )

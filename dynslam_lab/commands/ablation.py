@@ -4,6 +4,9 @@ Example::
 
     dynslam ablation data/synthetic/walking_xyz --out runs/ablation
     dynslam ablation SEQ1 SEQ2 --detector onnx:models/yolov8n-seg.onnx --filters none,semantic,full
+
+OUTDIR is an output folder like a run's (``docs/reliability.md``): new or empty, or, with
+``--force``, a previous ablation folder replaced.
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("seqdirs", nargs="+", metavar="SEQDIR", help="sequence folder(s) in TUM layout")
-    p.add_argument("--out", default="runs/ablation", metavar="OUTDIR", help="output folder (default runs/ablation)")
+    p.add_argument("--out", default="runs/ablation", metavar="OUTDIR", help="output folder, new or empty (default runs/ablation)")
+    p.add_argument("--force", action="store_true", help="replace a previous ablation folder at OUTDIR")
     p.add_argument("--filters", default="none;semantic;depth_ransac;geometry;full;oracle", metavar="LIST",
                    help="filters separated by ';' (a filter may itself be a comma-separated stage list); "
                         "default none;semantic;depth_ransac;geometry;full;oracle (oracle on synthetic only)")
@@ -51,18 +55,21 @@ def split_filters(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..config import Config, load_config
-    from ..experiments.ablation import run_ablation
+    from pathlib import Path
 
+    from ..config import Config, load_config
+    from ..errors import UsageError
+    from ..experiments.ablation import run_ablation
+    from ..runs import OutputFolder
+
+    if args.max_frames is not None and args.max_frames < 2:
+        raise UsageError(f"--max-frames must be >= 2, got {args.max_frames}")
     config = Config()
     if args.config:
         config = load_config(args.config, config)
-    if args.max_frames is not None and args.max_frames < 2:
-        raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
-    df = run_ablation(args.seqdirs, args.out, split_filters(args.filters), detector=args.detector, config=config,
-                      max_frames=args.max_frames, loop_closing=args.loop, progress=not args.quiet, camera=args.camera)
-    from pathlib import Path
-
+    with OutputFolder(args.out, kind="ablation", force=args.force):
+        run_ablation(args.seqdirs, args.out, split_filters(args.filters), detector=args.detector, config=config,
+                     max_frames=args.max_frames, loop_closing=args.loop, progress=not args.quiet, camera=args.camera)
     print((Path(args.out) / "ablation.md").read_text())
     print(f"wrote {args.out}/ablation.csv and ablation.md")
     return 0

@@ -4,6 +4,10 @@ Example::
 
     dynslam demo                 # 120 frames of walking_xyz, all filters, tables in runs/demo
     dynslam demo --frames 60 --out /tmp/demo
+
+OUTDIR is an output folder (``docs/reliability.md``): a previous demo there is replaced (it is
+recognised by its marker, and only the files the demo wrote are deleted); any other non-empty
+folder is refused.
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("--frames", type=int, default=120, metavar="N", help="frames to render and run (default 120)")
-    p.add_argument("--out", default="runs/demo", metavar="DIR", help="output folder (default runs/demo)")
+    p.add_argument("--out", default="runs/demo", metavar="DIR",
+                   help="output folder (default runs/demo; a previous demo there is replaced)")
     p.add_argument("--preset", default="walking_xyz", metavar="NAME", help="synthetic preset (default walking_xyz)")
     p.add_argument("--seed", type=int, default=0, help="renderer seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -33,18 +38,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from ..errors import UsageError
     from ..experiments.ablation import DEFAULT_FILTERS, run_ablation
+    from ..runs import OutputFolder
 
     if args.frames < 10:
-        raise ValueError(f"--frames must be at least 10, got {args.frames}")
+        raise UsageError(f"--frames must be at least 10, got {args.frames}")
     try:
         from ..datasets.synthetic import synthetic_sequence
     except ImportError as exc:
         raise RuntimeError(f"the synthetic renderer is not available ({exc})") from exc
-    print(f"rendering synthetic {args.preset} ({args.frames} frames, cached) ...")
-    seqdir = synthetic_sequence(args.preset, n_frames=args.frames, seed=args.seed)
-    run_ablation([seqdir], args.out, DEFAULT_FILTERS, detector="oracle", max_frames=args.frames,
-                 progress=not args.quiet)
+    with OutputFolder(args.out, kind="demo", force=True, option="a new demo") as folder:
+        if folder.replaced:
+            print(f"replaced the previous demo in {args.out}")
+        print(f"rendering synthetic {args.preset} ({args.frames} frames, cached) ...")
+        seqdir = synthetic_sequence(args.preset, n_frames=args.frames, seed=args.seed)
+        run_ablation([seqdir], args.out, DEFAULT_FILTERS, detector="oracle", max_frames=args.frames,
+                     progress=not args.quiet)
     print((Path(args.out) / "ablation.md").read_text())
     print(f"wrote {args.out}/ablation.csv and ablation.md")
     return 0

@@ -5,6 +5,9 @@ Example::
     dynslam detect frame.png --model yolov8n.onnx
     dynslam detect rgb/*.png --model yolox_nano.onnx --nms soft --classes person --json
     dynslam detect frame.png --model yolov8n-seg.onnx --save-dir dets/   # npz cache files too
+
+``--save-dir`` is an output folder (``docs/reliability.md``): new or empty, or, with ``--force``,
+a previous ``--save-dir`` folder replaced. ``--json`` prints strict JSON (no NaN/Infinity).
 """
 
 from __future__ import annotations
@@ -30,7 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sigma", type=float, default=None, help="soft-NMS Gaussian sigma (default 0.5)")
     p.add_argument("--classes", nargs="+", default=None, metavar="NAME", help="report only these COCO classes")
     p.add_argument("--config", default=None, metavar="TOML", help="TOML file with a [detection] table")
-    p.add_argument("--save-dir", default=None, metavar="DIR", help="also save each image's detections as DIR/STEM.npz")
+    p.add_argument("--save-dir", default=None, metavar="DIR",
+                   help="also save each image's detections as DIR/STEM.npz (DIR new or empty)")
+    p.add_argument("--force", action="store_true", help="replace a previous --save-dir folder")
     p.add_argument("--json", action="store_true", help="one JSON object per image instead of a table")
     p.set_defaults(func=run)
 
@@ -38,62 +43,63 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _config(args: argparse.Namespace):
     """DetectionConfig from --config's [detection] table, then the command-line options."""
     import dataclasses
-    import sys
-    from pathlib import Path
 
-    from ..config import with_overrides
-    from ..detection import DetectionConfig
+    from ..config import Config, load_config
+    from ..errors import UsageError
 
-    cfg = DetectionConfig()
-    if args.config:
-        if sys.version_info >= (3, 11):
-            import tomllib
-        else:  # pragma: no cover - Python 3.10
-            import tomli as tomllib  # type: ignore[no-redef]
-        path = Path(args.config)
-        if not path.is_file():
-            raise ValueError(f"{path}: config file not found")
-        try:
-            data = tomllib.loads(path.read_text())
-            cfg = with_overrides(cfg, data.get("detection", {}), "detection")
-        except (tomllib.TOMLDecodeError, ValueError) as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+    cfg = load_config(args.config, Config()).detection if args.config else Config().detection
     changes = {
         "score_threshold": args.score, "nms": args.nms, "nms_iou": args.iou, "soft_nms_sigma": args.sigma,
         "classes": tuple(args.classes) if args.classes else None,
     }
-    return dataclasses.replace(cfg, **{k: v for k, v in changes.items() if v is not None})
+    try:
+        return dataclasses.replace(cfg, **{k: v for k, v in changes.items() if v is not None})
+    except ValueError as exc:  # an option out of range (e.g. --score 2)
+        raise UsageError(str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    import contextlib
     from pathlib import Path
 
     from ..datasets.tum import load_rgb
     from ..detection import OnnxDetector, save_detections
+    from ..errors import UsageError
+    from ..jsonio import dumps
+    from ..runs import OutputFolder
 
+    stems = [Path(image).stem for image in args.images]
+    twice = sorted({s for s in stems if stems.count(s) > 1})
+    if args.save_dir and twice:
+        raise UsageError(f"--save-dir: several images share the file name stem {twice[:3]}; their detections would "
+                         "overwrite each other: run them separately")
     detector = OnnxDetector(args.model, _config(args))
     L = detector.layout
     if not args.json:
         print(f"{Path(args.model).name}: {L.family}, input {L.input_size[1]}x{L.input_size[0]}, "
               f"{L.num_classes} classes, NMS {detector.config.nms}")
-    for image in args.images:
-        det = detector.detect_image(load_rgb(image))
-        if args.save_dir:
-            save_detections(Path(args.save_dir) / Path(image).stem, det)
-        items = [
-            {"class": n, "class_id": int(c), "score": round(float(s), 4), "box": [round(float(v), 1) for v in b]}
-            for n, c, s, b in zip(det.names, det.class_ids, det.scores, det.boxes)
-        ]
-        if args.json:
-            print(json.dumps({
-                "image": str(image), "model": str(args.model), "family": L.family,
-                "image_size": list(det.image_size), "has_masks": det.masks is not None,
-                "detections": items, "timings_ms": {k: round(v, 2) for k, v in det.timings_ms.items()},
-            }))
-            continue
-        print(f"{image}: {len(det)} detections ({det.timings_ms['inference']:.1f} ms inference)")
-        for it in items:
-            x1, y1, x2, y2 = it["box"]
-            print(f"  {it['class']:<14} {it['score']:.2f}  {x1:7.1f} {y1:7.1f} {x2:7.1f} {y2:7.1f}")
+    out = OutputFolder(args.save_dir, kind="detections", force=args.force) if args.save_dir else contextlib.nullcontext()
+    with out as folder:
+        for image in args.images:
+            det = detector.detect_image(load_rgb(image))
+            if folder is not None:
+                stem = Path(image).stem
+                folder.record(f"{stem}.npz.tmp.npz")  # save_detections' own temporary file
+                folder.record(f"{stem}.npz")
+                save_detections(folder.path / stem, det)
+            items = [
+                {"class": n, "class_id": int(c), "score": round(float(s), 4), "box": [round(float(v), 1) for v in b]}
+                for n, c, s, b in zip(det.names, det.class_ids, det.scores, det.boxes)
+            ]
+            if args.json:
+                print(dumps({
+                    "image": str(image), "model": str(args.model), "family": L.family,
+                    "image_size": list(det.image_size), "has_masks": det.masks is not None,
+                    "detections": items, "timings_ms": {k: round(v, 2) for k, v in det.timings_ms.items()},
+                }), flush=True)
+                continue
+            print(f"{image}: {len(det)} detections ({det.timings_ms['inference']:.1f} ms inference)")
+            for it in items:
+                x1, y1, x2, y2 = it["box"]
+                print(f"  {it['class']:<14} {it['score']:.2f}  {x1:7.1f} {y1:7.1f} {x2:7.1f} {y2:7.1f}")
     return 0

@@ -37,30 +37,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="unit of --delta (default frames)",
     )
     p.add_argument("--all-pairs", action="store_true", help="RPE over all overlapping pairs, not consecutive ones")
+    p.add_argument("--dedupe", choices=("error", "first"), default="error",
+                   help="rows sharing a timestamp (in GT or EST): an error naming their lines (default), or keep the first")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    import math
 
+    from ..errors import UsageError
     from ..evaluation import evaluate, format_report, read_tum_trajectory
+    from ..jsonio import dumps
 
-    if args.max_diff < 0:
-        raise ValueError(f"--max-diff must be >= 0 seconds, got {args.max_diff}")
-    if args.delta <= 0:
-        raise ValueError(f"--delta must be > 0, got {args.delta}")
+    if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
+        raise UsageError(f"--max-diff must be a number >= 0 seconds, got {args.max_diff}")
+    if not (math.isfinite(args.delta) and args.delta > 0):
+        raise UsageError(f"--delta must be > 0, got {args.delta}")
     if args.delta_unit == "frames" and float(args.delta) != int(args.delta):
-        raise ValueError(f"--delta must be a whole number of frames, got {args.delta}")
+        raise UsageError(f"--delta must be a whole number of frames, got {args.delta}")
     delta = int(args.delta) if args.delta_unit == "frames" else float(args.delta)
-    gt = read_tum_trajectory(args.gt)
-    est = read_tum_trajectory(args.est)
+    gt = read_tum_trajectory(args.gt, duplicates=args.dedupe)
+    est = read_tum_trajectory(args.est, duplicates=args.dedupe)
     result = evaluate(
         gt, est, align=args.align, max_diff=args.max_diff, delta=delta, delta_unit=args.delta_unit,
         all_pairs=args.all_pairs, gt_name=args.gt, est_name=args.est,
     )
     if args.json:
-        print(json.dumps(result))
+        print(dumps(result))
     else:
         print(format_report(result))
     return 0

@@ -6,17 +6,32 @@ Example::
     dynslam synth walking_xyz out/walking_xyz --frames 120 --seed 1
     dynslam synth boxes_xyz out/boxes_xyz                       # a named stress scene
     dynslam synth boxes_xyz out/boxes_xyz_ref --no-movers       # the same room and camera path, no movers
-    dynslam synth random out/r7 --seed 7 --motion rpy --kinds box,pushed --frames 60
+    dynslam synth random --seed 7 --motion rpy --kinds box,pushed --frames 60 out/r7
 """
 
 from __future__ import annotations
 
 import argparse
 
-from ..datasets.stress import MOVER_KINDS
-from ..datasets.camera_paths import MOTIONS
-from ..datasets.movers import PATTERNS
-from ..datasets.rooms import LIGHTINGS, ROOM_STYLES
+
+class _IntermixedParser(argparse.ArgumentParser):
+    """Lets options come between PRESET and OUTDIR (``dynslam synth random --seed 7 OUT``).
+
+    With two optional positionals argparse takes both from the first run of positional words, so the
+    OUTDIR after the options would be "unrecognized"; intermixed parsing (argparse's own
+    ``parse_known_intermixed_args``) parses the options first and the positionals from what is left.
+    """
+
+    _inside = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self._inside:  # the two passes of the intermixed parse
+            return super().parse_known_args(args, namespace)
+        self._inside = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._inside = False
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,15 +55,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="stress scenes: the same room and camera path without movers (bit-identical where no mover is seen)")
     p.add_argument("--list", action="store_true", help="print the presets and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true",
+                   help="replace a sequence this command wrote before in OUTDIR (never a folder it did not make)")
     g = p.add_argument_group("random stress scenes (PRESET 'random')")
-    g.add_argument("--motion", choices=MOTIONS, help="camera motion (default: drawn among static, xyz, rpy, halfsphere)")
+    # (values are checked by random_scene_preset: importing the renderer here would slow down `dynslam --help`)
+    g.add_argument("--motion", help="camera motion: static, xyz, rpy, halfsphere or loop (default: drawn among the first four)")
     g.add_argument("--movers", type=int, default=None, metavar="K", help="number of movers 0..4 (default: drawn, 1..4)")
     g.add_argument("--kinds", default=None, metavar="K1,K2",
-                   help=f"comma-separated kind of each mover, from {', '.join(MOVER_KINDS)} (sets the number of movers)")
+                   help="comma-separated kind of each mover, from person, box, cart, panel, door, carried, pushed "
+                        "(sets the number of movers)")
     g.add_argument("--patterns", default=None, metavar="P1,P2",
-                   help=f"motion pattern of every mover (one) or of each, from {', '.join(PATTERNS)}")
-    g.add_argument("--style", choices=ROOM_STYLES, help="room surfaces (default: drawn)")
-    g.add_argument("--lighting", choices=LIGHTINGS, help="lighting family (default: drawn)")
+                   help="motion pattern of every mover (one) or of each, from pace, stop_go, enter")
+    g.add_argument("--style", help="room surfaces: noise, flat, pattern or photo (default: drawn)")
+    g.add_argument("--lighting", help="lighting family: even, dim, lamp, bright or window (default: drawn)")
     g.add_argument("--distance", type=float, nargs=2, default=(0.8, 3.0), metavar=("LO", "HI"),
                    help="distance of the movers' paths from the camera, m (default 0.8 3.0)")
     g.add_argument("--speed", type=float, nargs=2, default=(0.4, 2.0), metavar=("LO", "HI"),
@@ -56,6 +75,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--max-coverage", type=float, default=0.6, metavar="F",
                    help="bound on a rough estimate of the image fraction the movers cover (default 0.6)")
     p.set_defaults(func=run)
+    p.__class__ = _IntermixedParser  # the sub-command parser, made by the main parser, parses intermixed
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:
@@ -64,7 +84,8 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 
 def run(args: argparse.Namespace) -> int:
     from ..datasets import stress
-    from ..datasets.synthetic import PRESETS, get_preset, render_sequence, preset_names
+    from ..datasets.synthetic import PRESETS, get_preset, preset_names, render_sequence
+    from ..runs import OutputFolder
 
     if args.list:
         print(f"{'preset':<20} {'scene':<12} {'camera motion':<14} {'frames':>6}")
@@ -101,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         preset = preset.without_movers()
     if isinstance(preset, stress.StressPreset):
         print(stress.describe(preset))
-    out = render_sequence(preset, args.outdir, n_frames=args.frames, seed=args.seed, progress=not args.quiet)
+    with OutputFolder(args.outdir, kind="synth", force=args.force) as folder:
+        out = render_sequence(preset, folder.path, n_frames=args.frames, seed=args.seed, progress=not args.quiet)
     print(f"wrote {out}")
     return 0

@@ -44,15 +44,24 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import threading
     import time
+    from pathlib import Path
 
+    from ..errors import UsageError
+    from ..runs import verify_run
     from ..viz.viser_scene import SceneConfig, load_run, play_loop, start_viewer
 
     if not 0 < args.port < 65536:
-        raise ValueError(f"--port must be in 1..65535, got {args.port}")
+        raise UsageError(f"--port must be in 1..65535, got {args.port}")
     if args.max_dense_points < 0:
-        raise ValueError(f"--max-dense-points must be >= 0, got {args.max_dense_points}")
+        raise UsageError(f"--max-dense-points must be >= 0, got {args.max_dense_points}")
+    if args.timeout is not None and not args.timeout >= 0:
+        raise UsageError(f"--timeout must be >= 0 seconds, got {args.timeout}")
     t0 = time.perf_counter()
     data = load_run(args.outdir, ground_truth=args.gt, dense=False)  # map.ply is read in the background
+    summary_file = Path(args.outdir) / "summary.json"
+    if summary_file.is_file():  # sizes only: hashing map.ply would slow the start-up
+        for problem in verify_run(args.outdir, hashes=False)[:5]:
+            print(f"dynslam view: warning: {problem}", file=sys.stderr)
     t_load = time.perf_counter() - t0
     server, handles = start_viewer(data, port=args.port, host=args.host,
                                    config=SceneConfig(max_dense_points=args.max_dense_points))

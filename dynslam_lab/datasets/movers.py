@@ -54,11 +54,16 @@ class MotionPlan:
     legs : ``[(t0, s0, s1, v, a), ...]`` in time order; a leg starts at ``t0`` (s) and lasts until the
         next leg's ``t0``; a move when ``s1 != s0`` (cruise speed ``v`` m/s, acceleration ``a`` m/s^2),
         else a wait. A move must fit into its leg.
+    turn : seconds a body takes to turn round at a reversal, at the end of the wait before it
+        (:meth:`direction`).
     """
 
-    def __init__(self, legs: list[tuple[float, float, float, float, float]]) -> None:
+    def __init__(self, legs: list[tuple[float, float, float, float, float]], turn: float = 0.0) -> None:
         if not legs:
             raise ValueError("MotionPlan needs at least one leg")
+        if turn < 0:
+            raise ValueError(f"MotionPlan.turn must be >= 0 s, got {turn}")
+        self.turn = float(turn)
         arr = np.array(legs, float)
         self.t0, self.s0, self.s1, self.v, self.a = arr.T
         if np.any(np.diff(self.t0) < 0):
@@ -115,9 +120,9 @@ class MotionPlan:
         d, _ = self._along(k, t - self.t0[k])
         return float(self.walked[k] + d)
 
-    def direction(self, t: float, turn: float = 0.6) -> tuple[float, float]:
+    def direction(self, t: float) -> tuple[float, float]:
         """``(sign, u)``: the direction of the current or next move (+1 towards the far end, -1 back), and
-        during the last ``turn`` seconds of a wait before a reversal the progress ``u`` (0..1, smoothed)
+        during the last :attr:`turn` seconds of a wait before a reversal the progress ``u`` (0..1, smoothed)
         of turning round from the previous direction; ``u = 1`` otherwise."""
         k = self._leg(t)
         if self.sign[k] != 0:
@@ -129,7 +134,7 @@ class MotionPlan:
         if prv is None or self.sign[prv] == self.sign[nxt]:
             return float(self.sign[nxt]), 1.0
         t_end = self.t0[nxt]
-        u = _smooth(1.0 - (t_end - t) / max(min(turn, t_end - self.t0[k]), 1e-9))
+        u = _smooth(1.0 - (t_end - t) / max(min(self.turn, t_end - self.t0[k]), 1e-9))
         return float(self.sign[nxt]), u
 
 
@@ -177,7 +182,7 @@ def make_plan(pattern: str, length: float, speed: float, accel: float, rng: np.r
         wait(turn + pause)
         direction = -direction
     wait(1.0)  # a last wait, so the final position holds
-    return MotionPlan(legs)
+    return MotionPlan(legs, turn)
 
 
 @dataclass(frozen=True)

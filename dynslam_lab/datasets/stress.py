@@ -730,7 +730,7 @@ def build_stress_scene(preset: StressPreset) -> OfficeScene:
         w, d, h = spec.size
         a, b = preset.to_world(spec.start), preset.to_world(spec.end)
         seg = Segment((float(a[0]), float(a[1])), (float(b[0]), float(b[1])))
-        turn = 0.7 if spec.kind in ("person", "carried") else 0.0
+        turn = {"person": 0.7, "carried": 1.2}.get(spec.kind, 0.0)  # s to turn round (slower with a box in the arms)
         plan = make_plan(spec.pattern, spec.path_length, spec.speed, spec.accel, rng, delay=spec.delay, turn=turn)
         if spec.kind in ("person", "carried", "pushed"):
             k = h / 1.72

@@ -178,10 +178,7 @@ class TumSequence:
         if max_frames is not None:
             self._entries = self._entries[: int(max_frames)]
         if not self._entries:
-            raise DatasetError(
-                f"{self.root}: no colour/depth pairs within {self.max_diff} s of each other; "
-                "check rgb.txt/depth.txt timestamps or pass a larger max_diff"
-            )
+            raise DatasetError(self._why_no_frames())
         self.instance_classes = self._read_instances()
         self._moving = self._read_moving()
         self._moving_ts = np.fromiter(self._moving, dtype=np.float64) if self._moving else np.zeros(0)
@@ -189,6 +186,20 @@ class TumSequence:
         self._gt_index = self._associate_gt()
 
     # ------------------------------------------------------------------ reading
+    def _why_no_frames(self) -> str:
+        """Why no frame was found: an empty list file, or timestamps that do not pair."""
+        lists = [self.root / "rgb.txt", self.root / "depth.txt"]
+        if (self.root / "associations.txt").is_file():
+            lists = [self.root / "associations.txt"]
+        for p in lists:
+            if p.is_file() and len(read_file_list(p)[0]) == 0:
+                return f"{p}: lists no frames (the file is empty or holds only comments)"
+        if len(lists) == 1:
+            return f"{self.root}: no frames left after stride/max_frames"
+        (a, _), (b, _) = read_file_list(lists[0]), read_file_list(lists[1])
+        return (f"{self.root}: no colour/depth pairs within {self.max_diff} s of each other: rgb.txt spans "
+                f"[{a.min():.6f}, {a.max():.6f}] s, depth.txt [{b.min():.6f}, {b.max():.6f}] s; check the timestamps")
+
     def _read_entries(self, associations) -> list[_Entry]:
         masks_dir = self.root / "masks"
         assoc_path: Path | None = None
@@ -223,7 +234,17 @@ class TumSequence:
             data = json.loads(p.read_text())
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{p}: invalid JSON ({exc})") from exc
-        return {int(k): (v["class"] if isinstance(v, dict) else str(v)) for k, v in data.items()}
+        if not isinstance(data, dict):
+            raise DatasetError(f"{p}: expected an object of instance id -> class, got {type(data).__name__}")
+        out = {}
+        for k, v in data.items():
+            if isinstance(v, dict) and not isinstance(v.get("class"), str):
+                raise DatasetError(f"{p}: instance {k!r} has no \"class\" name (got {v!r})")
+            try:
+                out[int(k)] = v["class"] if isinstance(v, dict) else str(v)
+            except ValueError:
+                raise DatasetError(f"{p}: instance id {k!r} is not an integer") from None
+        return out
 
     def _read_moving(self) -> dict[float, frozenset[int]] | None:
         p = self.root / "moving.txt"
@@ -242,7 +263,7 @@ class TumSequence:
         p = self.root / "groundtruth.txt"
         if not p.is_file():
             return None
-        return read_tum_trajectory(p)
+        return read_tum_trajectory(p, duplicates="first")  # real ground truth has them (fr2/desk: 1)
 
     def _associate_gt(self) -> np.ndarray | None:
         if self.groundtruth is None:

@@ -57,6 +57,20 @@ class MotionPriorConfig:
     # COCO class -> "high" | "medium" | "low" dynamic level (Zhang et al. 2023 Sec. 4; split is ours).
     dynamic_level_of: dict[str, str] = field(default_factory=lambda: dict(DYNAMIC_LEVEL_OF))
 
+    def __post_init__(self) -> None:
+        for c in self.apriori_dynamic:
+            class_id(c)
+        for c, p in self.asg_probabilities.items():
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"priors.asg_probabilities.{c}: {p} is outside [0, 1]")
+        for c, cat in self.asg_category_of.items():
+            if cat not in self.asg_probabilities:
+                raise ValueError(f"priors.asg_category_of.{c}: category {cat!r} has no probability in asg_probabilities "
+                                 f"({sorted(self.asg_probabilities)})")
+        for c, level in self.dynamic_level_of.items():
+            if level not in ("high", "medium", "low"):
+                raise ValueError(f"priors.dynamic_level_of.{c}: {level!r} is not 'high', 'medium' or 'low'")
+
 
 @dataclass(frozen=True)
 class DetectionConfig:
@@ -120,6 +134,12 @@ class DetectionConfig:
             raise ValueError(f"detection.oracle.miss_rate: {o.miss_rate} is outside [0, 1]")
         if o.jitter < 0 or o.false_positives < 0:
             raise ValueError("detection.oracle: jitter and false_positives must be >= 0")
+        if o.min_area < 0:
+            raise ValueError(f"detection.oracle.min_area: {o.min_area} must be >= 0 pixels")
+        if self.nanodet_reg_max < 1:
+            raise ValueError(f"detection.nanodet_reg_max: {self.nanodet_reg_max} must be >= 1")
+        if self.num_threads < 0:
+            raise ValueError(f"detection.num_threads: {self.num_threads} must be >= 0 (0 = onnxruntime's default)")
         for c in self.classes:
             class_id(c)
         class_id(o.false_positive_class)

@@ -295,6 +295,11 @@ class OnnxDetector:
         """
         c = self.config
         cand = self.decode(outputs)
+        finite = np.isfinite(cand.boxes).all(axis=1) & np.isfinite(cand.scores)
+        if cand.coeffs is not None:
+            finite &= np.isfinite(cand.coeffs).all(axis=1)
+        if not finite.all():  # a broken or mis-quantised model: such rows are not detections
+            cand = cand.select(finite)
         keep, scores = suppress(
             cand.boxes, cand.scores, cand.class_ids, c.nms, c.nms_iou, c.soft_nms_sigma,
             c.score_threshold, c.class_agnostic, c.max_detections,

@@ -79,7 +79,7 @@ def letterbox(
     h, w = _check_image(image)
     H, W = input_size
     r = min(H / h, W / w)
-    nw, nh = int(round(w * r)), int(round(h * r))
+    nw, nh = max(1, int(round(w * r))), max(1, int(round(h * r)))  # a 2 x 4000 image keeps one row
     resized = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_LINEAR) if (nw, nh) != (w, h) else image
     left = (W - nw) // 2 if centre else 0
     top = (H - nh) // 2 if centre else 0

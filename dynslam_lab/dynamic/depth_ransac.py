@@ -92,6 +92,8 @@ class DepthRansacConfig:
             raise ValueError(f"DepthRansacConfig.pixel_samples must be >= 3, got {self.pixel_samples}")
         if not 0 < self.front_min_fraction <= 1:
             raise ValueError(f"DepthRansacConfig.front_min_fraction must be in (0, 1], got {self.front_min_fraction}")
+        if self.min_keypoints < 0:
+            raise ValueError(f"DepthRansacConfig.min_keypoints must be >= 0, got {self.min_keypoints}")
 
     @property
     def var_threshold_m2(self) -> float:

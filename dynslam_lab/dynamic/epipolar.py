@@ -60,6 +60,8 @@ class LkConfig:
     def __post_init__(self) -> None:
         if self.win_size < 3 or self.max_level < 0 or self.fb_max_px <= 0:
             raise ValueError("LkConfig: win_size must be >= 3, max_level >= 0, fb_max_px > 0")
+        if self.max_iterations < 1 or not self.epsilon > 0:
+            raise ValueError(f"LkConfig: max_iterations must be >= 1 and epsilon > 0, got {self.max_iterations}, {self.epsilon}")
 
 
 @dataclass(frozen=True)
@@ -79,6 +81,10 @@ class EpipolarConfig:
             raise ValueError("EpipolarConfig: threshold_px and ransac_threshold_px must be > 0 (pixels)")
         if self.min_pairs < 8:
             raise ValueError(f"EpipolarConfig.min_pairs must be >= 8 (eight-point algorithm), got {self.min_pairs}")
+        if self.border_px < 0 or self.min_parallax_px < 0:
+            raise ValueError(f"EpipolarConfig: border_px and min_parallax_px must be >= 0, got {self.border_px}, {self.min_parallax_px}")
+        if not 0 < self.ransac_confidence < 1:
+            raise ValueError(f"EpipolarConfig.ransac_confidence must be in (0, 1), got {self.ransac_confidence}")
 
 
 @dataclass

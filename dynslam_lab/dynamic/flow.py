@@ -58,6 +58,15 @@ class FlowConfig:
             raise ValueError(f"FlowConfig.scale must be in (0, 1], got {self.scale}")
         if self.factor <= 0 or self.min_flow_px < 0:
             raise ValueError("FlowConfig: factor must be > 0 and min_flow_px >= 0")
+        if self.touch_px < 0 or self.min_region_px < 0:
+            raise ValueError(f"FlowConfig: touch_px and min_region_px must be >= 0, got {self.touch_px}, {self.min_region_px}")
+        if not 0 < self.pyr_scale < 1:
+            raise ValueError(f"FlowConfig.pyr_scale must be in (0, 1), got {self.pyr_scale}")
+        for name in ("levels", "winsize", "iterations", "poly_n"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"FlowConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if not self.poly_sigma > 0:
+            raise ValueError(f"FlowConfig.poly_sigma must be > 0, got {self.poly_sigma}")
 
 
 @dataclass

@@ -57,6 +57,9 @@ class MultiViewConfig:
             raise ValueError("MultiViewConfig: reprojection_px, depth_m and pnp_reprojection_px must be > 0")
         if self.min_pairs < 4 or self.min_inliers < 4:
             raise ValueError("MultiViewConfig: PnP needs min_pairs >= 4 and min_inliers >= 4")
+        if self.pnp_iterations < 1 or not 0 < self.pnp_confidence < 1:
+            raise ValueError(f"MultiViewConfig: pnp_iterations must be >= 1 and pnp_confidence in (0, 1), got "
+                             f"{self.pnp_iterations}, {self.pnp_confidence}")
 
 
 @dataclass

@@ -43,6 +43,8 @@ class SemanticConfig:
             raise ValueError(f"SemanticConfig.prior must be 'apriori' or 'levels', got {self.prior!r}")
         if self.mask_dilation_px < 0:
             raise ValueError(f"SemanticConfig.mask_dilation_px must be >= 0, got {self.mask_dilation_px}")
+        if not 0 <= self.min_score <= 1:
+            raise ValueError(f"SemanticConfig.min_score must be in [0, 1], got {self.min_score}")
 
 
 @dataclass

@@ -13,7 +13,7 @@ import numpy as np
 from ..geometry.se3 import pose_from_tum, pose_to_tum
 from ..textfile import data_lines
 
-__all__ = ["Trajectory", "TrajectoryError", "read_tum_trajectory", "write_tum_trajectory"]
+__all__ = ["Trajectory", "TrajectoryError", "read_tum_trajectory", "write_tum_trajectory", "DUPLICATES"]
 
 
 class TrajectoryError(ValueError):
@@ -66,8 +66,22 @@ class Trajectory:
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
 
 
-def read_tum_trajectory(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory file; clear error naming file and line on a malformed row."""
+#: What :func:`read_tum_trajectory` does with rows sharing a timestamp.
+DUPLICATES = ("error", "first")
+
+
+def read_tum_trajectory(path: str | Path, duplicates: str = "error") -> Trajectory:
+    """Read a TUM trajectory file; clear error naming file and line on a malformed row.
+
+    Parameters
+    ----------
+    path : the file (``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments).
+    duplicates : rows with the same timestamp are an error naming their lines (``"error"``,
+        default: one duplicated row of an estimate moved its ATE from 0.15 to 0.9 m), or only
+        the first of them (in file order) is kept (``"first"``).
+    """
+    if duplicates not in DUPLICATES:
+        raise ValueError(f"duplicates must be one of {DUPLICATES}, got {duplicates!r}")
     path = Path(path)
     lines: list[tuple[int, str]] = []
     rows: list[list[float]] = []
@@ -92,10 +106,23 @@ def read_tum_trajectory(path: str | Path) -> Trajectory:
     if zero.any():
         raise TrajectoryError(f"{path}:{lines[int(np.argmax(zero))][0]}: quaternion has zero norm")
     ts = data[:, 0]
-    order = np.argsort(ts, kind="stable")
+    order = np.argsort(ts, kind="stable")  # stable: equal stamps stay in file order
+    dup = np.flatnonzero(np.diff(ts[order]) == 0) + 1  # positions (in order) repeating the previous stamp
+    if len(dup):
+        if duplicates == "error":
+            first = [lines[order[k - 1]][0] for k in dup]
+            again = [lines[order[k]][0] for k in dup]
+            shown = ", ".join(f"{ts[order[k]]:.6f} on lines {a} and {b}" for k, a, b in list(zip(dup, first, again))[:3])
+            more = f" (and {len(dup) - 3} more)" if len(dup) > 3 else ""
+            raise TrajectoryError(
+                f"{path}: {len(dup)} duplicated timestamp(s): {shown}{more}; remove them, or keep the first row "
+                "of each (dynslam eval --dedupe first)"
+            )
+        order = np.delete(order, dup)
+    ts = ts[order]
     arr = data[order, 1:]
     arr[:, 3:] /= np.linalg.norm(arr[:, 3:], axis=1, keepdims=True)
-    return Trajectory(ts[order], pose_from_tum(arr))
+    return Trajectory(ts, pose_from_tum(arr))
 
 
 def write_tum_trajectory(traj: Trajectory, path: str | Path, header: str | None = None) -> None:

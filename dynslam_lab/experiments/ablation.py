@@ -26,6 +26,7 @@ import pandas as pd
 from ..config import Config
 from ..datasets.tum import TumSequence
 from ..dynamic.screening import FILTERS
+from ..runs import atomic_write
 from .robustness import run_one
 
 __all__ = ["DEFAULT_FILTERS", "run_ablation", "ablation_markdown"]
@@ -122,8 +123,8 @@ def run_ablation(
         cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "tracked", "lost",
                 "frames", "loops", "screen_median_ms", "run_dir"]
         df = df[cols]
-    df.to_csv(outdir / "ablation.csv", index=False)
-    (outdir / "ablation.md").write_text(ablation_markdown(df))
+    atomic_write(outdir / "ablation.csv", lambda tmp: df.to_csv(tmp, index=False))
+    atomic_write(outdir / "ablation.md", lambda tmp: tmp.write_text(ablation_markdown(df)))
     return df
 
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["OrbConfig", "Features", "extract_features", "level_quotas", "scale_factors"]
+__all__ = ["OrbConfig", "Features", "extract_features", "refine_subpixel", "level_quotas", "scale_factors"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,8 @@ class OrbConfig:
     edge_threshold: int = 19  # border without features (px); ORB-SLAM2 EDGE_THRESHOLD: 19
     patch_size: int = 31  # BRIEF / orientation patch (px); ORB-SLAM2 PATCH_SIZE: 31
     oversample: float = 2.5  # corners asked from OpenCV per kept keypoint (ours; bucketing needs spare)
+    subpixel_levels: int = 0  # refine keypoints of levels < this with cv2.cornerSubPix on their level image (0 = off); ours (ORB-SLAM2 keeps integer level pixels)
+    subpixel_max_shift: float = 0.75  # a refinement moving a keypoint more than this (level px) is dropped (keeps the integer position); ours
 
     def __post_init__(self) -> None:
         if self.n_features < 1:
@@ -66,6 +68,14 @@ class OrbConfig:
             )
         if self.oversample < 1.0:
             raise ValueError(f"OrbConfig.oversample must be >= 1, got {self.oversample}")
+        if self.edge_threshold < 0:
+            raise ValueError(f"OrbConfig.edge_threshold must be >= 0 pixels, got {self.edge_threshold}")
+        if self.patch_size < 3:
+            raise ValueError(f"OrbConfig.patch_size must be >= 3 pixels, got {self.patch_size}")
+        if not 0 <= self.subpixel_levels <= self.n_levels:
+            raise ValueError(f"OrbConfig.subpixel_levels must be in [0, n_levels], got {self.subpixel_levels}")
+        if not self.subpixel_max_shift > 0:
+            raise ValueError(f"OrbConfig.subpixel_max_shift must be > 0 (level px), got {self.subpixel_max_shift}")
 
 
 @dataclass
@@ -218,10 +228,39 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
     kept, desc = orb.compute(gray, [kps[i] for i in keep])
     if desc is None or not kept:
         return Features.empty()
+    uv = np.array([k.pt for k in kept], dtype=np.float32)
+    octave = np.array([k.octave for k in kept], dtype=np.int64)
+    if cfg.subpixel_levels > 0:
+        uv = refine_subpixel(gray, uv, octave, cfg)
     return Features(
-        uv=np.array([k.pt for k in kept], dtype=np.float32),
-        octave=np.array([k.octave for k in kept], dtype=np.int64),
+        uv=uv,
+        octave=octave,
         angle=np.array([k.angle for k in kept], dtype=np.float64),
         response=np.array([k.response for k in kept], dtype=np.float64),
         descriptors=desc,
     )
+
+
+def refine_subpixel(gray: np.ndarray, uv: np.ndarray, octave: np.ndarray, cfg: OrbConfig) -> np.ndarray:
+    """Keypoints of the levels ``s < cfg.subpixel_levels`` moved to the sub-pixel corner position
+    of ``cv2.cornerSubPix`` (5x5 window) on their level image; ``(N, 2)`` float32 level-0 pixels.
+
+    OpenCV's ORB (as ORB-SLAM2) reports a level-``s`` keypoint at its integer level pixel times
+    ``f^s``: a 0.5 px rounding at level 0 is 0.5 f^s px at level ``s``. A refinement that moves a
+    point more than ``cfg.subpixel_max_shift`` level pixels is not trusted (the point keeps its
+    integer position).
+    """
+    out = uv.copy()
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
+    h, w = gray.shape
+    for s in range(min(cfg.subpixel_levels, cfg.n_levels)):
+        sel = np.flatnonzero(octave == s)
+        if not len(sel):
+            continue
+        scale = cfg.scale_factor ** s
+        img = gray if s == 0 else cv2.resize(gray, (round(w / scale), round(h / scale)), interpolation=cv2.INTER_LINEAR)
+        pts = (uv[sel] / scale).astype(np.float32).reshape(-1, 1, 2)
+        ref = cv2.cornerSubPix(img, pts.copy(), (2, 2), (-1, -1), crit).reshape(-1, 2)
+        ok = np.all(np.abs(ref - pts.reshape(-1, 2)) <= cfg.subpixel_max_shift, axis=1)
+        out[sel[ok]] = ref[ok] * scale
+    return out

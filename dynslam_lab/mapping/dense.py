@@ -218,7 +218,7 @@ def read_keyframes(outdir: str | Path) -> dict[str, np.ndarray]:
 
 
 def write_dense_map(sequence, outdir: str | Path, dynamic_masks: dict[int, np.ndarray] | None,
-                    config: DenseMapConfig | None = None) -> Path:
+                    config: DenseMapConfig | None = None, path: str | Path | None = None) -> Path:
     """Build the dense static map of a run and write it to ``OUTDIR/map.ply``.
 
     Parameters
@@ -228,6 +228,8 @@ def write_dense_map(sequence, outdir: str | Path, dynamic_masks: dict[int, np.nd
     dynamic_masks : frame index -> ``(H, W)`` bool dynamic pixels (the screener's
         ``region_mask``), or None; keyframes without an entry keep all their pixels.
     config : :class:`DenseMapConfig`.
+    path : where to write the PLY instead of ``OUTDIR/map.ply`` (the run writer passes a
+        temporary file that it then renames, so ``map.ply`` appears whole or not at all).
 
     Returns
     -------
@@ -246,7 +248,7 @@ def write_dense_map(sequence, outdir: str | Path, dynamic_masks: dict[int, np.nd
             yield sequence[int(idx)], T, dynamic_masks.get(int(idx))
 
     dmap = build_dense_map(frames(), config)
-    return write_ply(outdir / "map.ply", dmap.xyz, dmap.rgb,
+    return write_ply(outdir / "map.ply" if path is None else path, dmap.xyz, dmap.rgb,
                      comment=f"dynslam_lab dense static map, {dmap.stats['keyframes']} keyframes")
 
 

@@ -148,12 +148,17 @@ def read_ply_header(path: str | Path) -> PlyHeader:
                 continue
             if words[0] == "end_header":
                 break
+            if words[0] in ("format", "element", "property") and len(words) < 3:
+                raise PlyError(f"{path}: malformed header line {line.strip()[:60]!r}")
             if words[0] == "format":
                 fmt = words[1]
             elif words[0] == "element":
                 current = words[1]
                 if current == "vertex":
-                    n_vertex = int(words[2])
+                    count = words[2]
+                    if not count.isdigit():  # also refuses "-5", "1e15", "abc"
+                        raise PlyError(f"{path}: vertex count {count!r} is not a whole number >= 0")
+                    n_vertex = int(count)
                 elif n_vertex is None:
                     raise PlyError(f"{path}: element {current!r} comes before 'vertex' (not supported)")
             elif words[0] == "property" and current == "vertex":
@@ -190,6 +195,11 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     head = read_ply_header(path)
     n_vertex, props = head.n_vertex, head.properties
     names = [p[0] for p in props]
+    data_bytes = path.stat().st_size - head.data_offset  # checked before reading: a count of 10^15 must not allocate
+    per_vertex = sum(np.dtype(t).itemsize for _, t in props) if head.format != "ascii" else 2 * len(props)
+    if n_vertex * per_vertex > data_bytes:
+        raise PlyError(f"{path}: truncated: the header announces {n_vertex} vertices, the file holds data for at most "
+                       f"{data_bytes // per_vertex}")
     with path.open("rb") as fh:
         fh.seek(head.data_offset)
         if head.format == "ascii":

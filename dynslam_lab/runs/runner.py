@@ -1,16 +1,30 @@
-"""Run a built system over a sequence and write its run folder (:mod:`.layout`).
+"""Run a built system over a sequence and write its run folder (:mod:`.layout`) as a transaction.
 
-A frame that cannot be read or processed is logged, counted as lost, and the run goes on.
-Everything computed so far is written every ``flush_every`` frames, so a crash loses little;
-``summary.json`` says ``complete: false`` until the last frame, the evaluation and the dense map
-are done.
+The run folder is opened as an :class:`~.folder.OutputFolder` (fresh or, with ``force``, a
+previous run folder replaced; locked against a second writer). A frame that cannot be read or
+processed is logged, counted as lost, and the run goes on; but when the *first* frames all fail
+with the same error (8-bit depth, colour and depth of different sizes, an oracle detector on real
+data, an empty detection cache), that error would repeat on every frame: the run stops at once
+with :class:`RunStopped` naming it.
+
+Everything computed so far is written after the first frame and then every ``flush_every``
+frames (10), ``summary.json`` last, listing each file with its size and SHA-256; it says
+``complete: true`` only after the last frame, the evaluation and the dense map. Ctrl-C (or any
+error) stops the run cleanly: the files are written once more as they stand, ``summary.json``
+says ``complete: false`` and ``state: "interrupted"`` with the frames done, and
+:class:`RunInterrupted` (a ``KeyboardInterrupt``) is raised; ``dynslam run`` exits with 130.
 """
 
 from __future__ import annotations
 
 import logging
+import re
+import signal
+import sys
+import threading
 import time
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -19,15 +33,81 @@ import numpy as np
 from tqdm import tqdm
 
 from ..config import config_to_dict
+from ..datasets.prefetch import FramePrefetcher, PrefetchConfig
 from ..evaluation.tables import evaluate
 from ..mapping.dense import write_dense_map
 from ..slam.system import FrameResult, System
 from ..threads import blas_single_thread
-from .layout import STAGES, RunWriter
+from .folder import OutputFolder
+from .layout import FILES, STAGES, RunWriter
 
-__all__ = ["run_sequence", "RunRecorder"]
+__all__ = ["run_sequence", "RunRecorder", "RunInterrupted", "RunStopped", "FLUSH_EVERY", "REPEATED_ERROR_FRAMES"]
 
 log = logging.getLogger(__name__)
+
+#: Frames between two writes of the run folder (after the first frame's).
+FLUSH_EVERY = 10
+#: When this many first frames all fail with the same error, the run stops.
+REPEATED_ERROR_FRAMES = 5
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run; its folder holds a consistent partial run (``complete: false``).
+
+    Attributes: ``summary`` (what ``summary.json`` says), ``message`` (one line for the user).
+    """
+
+    def __init__(self, message: str, summary: dict) -> None:
+        super().__init__(message)
+        self.message = message
+        self.summary = summary
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class RunStopped(ValueError):
+    """A run stopped early because its configuration or data cannot work (the first frames all
+    failed with the same error); its folder holds ``summary.json`` with ``state: "failed"``."""
+
+    def __init__(self, message: str, summary: dict | None = None) -> None:
+        super().__init__(message)
+        self.summary = summary
+
+
+def _error_shape(message: str) -> str:
+    """A frame's error message without its paths and numbers (the same error on every frame)."""
+    return re.sub(r"\d+(\.\d+)?", "#", re.sub(r"\S*[/\\]\S*", "<path>", message))
+
+
+def _check_size(frame, camera) -> None:
+    """A frame of another size than the camera would be tracked with the wrong intrinsics."""
+    h, w = frame.rgb.shape[:2]
+    if (h, w) != (camera.height, camera.width):
+        where = frame.rgb_path or f"frame {frame.index}"
+        raise ValueError(f"{where}: image is {w}x{h} but the camera '{camera.name}' is {camera.width}x{camera.height} "
+                         "(its intrinsics would be wrong): fix camera.json or pass another --camera")
+
+
+@contextmanager
+def _sigint_deferred():
+    """While the partial run is written after a Ctrl-C, a second Ctrl-C only says to wait."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        print("dynslam: still writing the partial run folder, one moment ...", file=sys.stderr, flush=True)
+
+    try:
+        old = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main interpreter
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 @dataclass
@@ -40,7 +120,11 @@ class RunRecorder:
     dynamic_xyz, dynamic_frame : world points of keypoints judged dynamic, and their frames.
     region_masks : keyframe frame index -> ``(H, W)`` bool pixels judged dynamic (the dense map
         leaves them out).
-    errors : one message per frame that failed.
+    errors : one message per frame that failed (``summary.json`` keeps the first and last 25).
+    n_ok : frames processed without an exception.
+    error_shapes : the first frames' errors without paths and numbers (a repeating error).
+    shape_counts : how often each kind of error occurred (only the first few are logged).
+    config_dict : ``summary.json``'s ``config`` (computed on the first summary).
     """
 
     writer: RunWriter
@@ -50,17 +134,37 @@ class RunRecorder:
     dynamic_frame: list[np.ndarray] = field(default_factory=list)
     region_masks: dict[int, np.ndarray] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+    n_ok: int = 0
+    error_shapes: list[str] = field(default_factory=list)
+    shape_counts: dict[str, int] = field(default_factory=dict)
+    config_dict: dict | None = None
 
     def failed(self, index: int, timestamp: float, exc: Exception) -> None:
-        """A frame that could not be processed at all."""
+        """A frame that could not be processed at all (logged: the first few of each kind of error)."""
         msg = f"frame {index}: {type(exc).__name__}: {exc}"
-        log.warning("%s", msg)
+        shape = _error_shape(f"{type(exc).__name__}: {exc}")
+        seen = self.shape_counts.get(shape, 0)
+        self.shape_counts[shape] = seen + 1
+        starting = self.n_ok == 0 and seen > 0  # the first frames failing alike: the stop will say it once
+        if not starting and seen < 3:
+            note = " (further frames failing the same way are listed in summary.json only)" if seen == 2 else ""
+            log.warning("%s%s", msg, note)
         log.debug("%s", traceback.format_exc())
         self.errors.append(msg)
         self.rows.append({"frame": index, "timestamp": timestamp})
+        if self.n_ok == 0 and len(self.error_shapes) < REPEATED_ERROR_FRAMES:
+            self.error_shapes.append(shape)
+
+    def repeating_error(self, n_frames: int) -> str | None:
+        """The error of the first frames when they all failed the same way (it will repeat)."""
+        k = min(REPEATED_ERROR_FRAMES, n_frames)
+        if self.n_ok == 0 and len(self.error_shapes) >= k and len(set(self.error_shapes[:k])) == 1:
+            return f"the first {k} frames all failed with the same error, which would repeat on every frame: {self.errors[0]}"
+        return None
 
     def frame(self, index: int, res: FrameResult, system: System) -> None:
         """A processed frame: its timings, dynamic points, thumbnail, region mask, labels."""
+        self.n_ok += 1
         self.rows.append({"frame": index, "timestamp": res.timestamp, **res.timings_ms})
         if res.dynamic_xyz is not None and len(res.dynamic_xyz):
             self.dynamic_xyz.append(res.dynamic_xyz)
@@ -74,9 +178,19 @@ class RunRecorder:
         if self.save_labels and res.table is not None:
             self.writer.labels(index, res.table.to_dataframe())
 
-    def write(self, system: System, summary: dict) -> None:
-        """Every file of the run as it stands, ``summary.json`` last."""
+    def write(self, system: System, summary: dict, final: bool = False) -> None:
+        """Every file of the run as it stands, ``summary.json`` last.
+
+        While the files change, ``summary.json`` lists none of them, so that at every instant
+        each file it lists is the one it describes. ``final`` also deletes the thumbnails of
+        keyframes culled since they were written.
+        """
         w = self.writer
+        w.summary(summary, list_files=False)
+        if final:
+            keep = {f"{FILES['thumbs']}/{k}.jpg" for k in system.map.keyframes}
+            for rel in [r for r in w.files if r.startswith(FILES["thumbs"] + "/") and r not in keep]:
+                w.remove(rel)
         w.trajectory(system.trajectory())
         w.timing(self.rows)
         w.keyframes(**system.keyframe_arrays())
@@ -86,12 +200,19 @@ class RunRecorder:
         w.dynamic_points(xyz, fr)
         w.summary(summary)
 
-    def summary(self, sequence, system: System, n_frames: int, complete: bool) -> dict:
-        """The ``summary.json`` dict of the run so far."""
+    def _config(self, system: System) -> dict:
+        """The config every stage runs with (fixed for the run: computed once)."""
+        if self.config_dict is None:
+            self.config_dict = config_to_dict(system.effective_config())
+        return self.config_dict
+
+    def summary(self, sequence, system: System, n_frames: int, complete: bool, state: str = "running") -> dict:
+        """The ``summary.json`` dict of the run so far (``state``: running, complete, interrupted, failed)."""
         stage_ms = {s: np.array([r.get(s, np.nan) for r in self.rows], float) for s in STAGES}
         return {
             "sequence": str(sequence.root),
             "complete": complete,
+            "state": state,
             "frames": n_frames,
             "processed": len(self.rows),
             "tracked": len(system.trajectory()),
@@ -103,9 +224,11 @@ class RunRecorder:
             "loop_edges": [list(e) for e in system.keyframe_arrays()["loop_edges"].tolist()],
             "timing_median_ms": {s: (float(np.nanmedian(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
             "timing_mean_ms": {s: (float(np.nanmean(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
-            "errors": self.errors[-50:],
+            "failed_frames": len(self.errors),
+            "errors": self.errors if len(self.errors) <= 50 else
+            self.errors[:25] + [f"... {len(self.errors) - 50} more ..."] + self.errors[-25:],
             "pipeline": dict(system.description),
-            "config": config_to_dict(system.effective_config()),
+            "config": self._config(system),
         }
 
 
@@ -116,8 +239,10 @@ def run_sequence(
     max_frames: int | None = None,
     progress: bool = True,
     save_labels: bool = False,
-    flush_every: int = 50,
+    flush_every: int = FLUSH_EVERY,
     on_frame: Callable[[object, FrameResult], None] | None = None,
+    force: bool = False,
+    prefetch: PrefetchConfig = PrefetchConfig(),
 ) -> dict:
     """Run ``system`` over ``sequence`` and write the run folder ``outdir``.
 
@@ -125,57 +250,107 @@ def run_sequence(
     ----------
     sequence : a :class:`~dynslam_lab.datasets.tum.TumSequence` (indexable, ``len``, ``root``,
         ``name``, ``timestamps``, ``groundtruth`` or None).
-    outdir : run folder (created).
+    outdir : run folder: new or empty (or a previous run folder, with ``force``).
     system : the SLAM system, from :func:`dynslam_lab.pipeline.build_pipeline`; its screener's
         history is reset first.
     max_frames : process only the first frames.
     progress : show a tqdm progress bar.
     save_labels : write each frame's keypoint table to ``labels/``.
-    flush_every : write all outputs every this many frames.
+    flush_every : write all outputs after the first frame and then every this many frames.
     on_frame : called as ``on_frame(frame, result)`` after each processed frame (scores,
         notebooks).
+    force : replace a previous run folder at ``outdir`` (recognised by its marker; a folder
+        holding files dynslam_lab did not write is never touched).
+    prefetch : read-ahead of the frames (:class:`~dynslam_lab.datasets.prefetch.PrefetchConfig`;
+        ``queue_size=0`` reads in this thread).
 
     Returns
     -------
     The summary dict (also in ``summary.json``), with ``ate``/``rpe`` when ground truth exists.
+
+    Raises
+    ------
+    OutputFolderError
+        ``outdir`` is a file, not empty, not writable, or another process writes into it.
+    RunStopped
+        The first frames all failed with the same error (the folder records it, ``state: failed``).
+    RunInterrupted
+        Ctrl-C; the folder holds the partial run (``complete: false``, ``state: interrupted``).
     """
     n = len(sequence) if max_frames is None else min(len(sequence), int(max_frames))
     if n <= 0:
         raise ValueError(f"{sequence.root}: nothing to run (max_frames={max_frames})")
+    if flush_every < 1:
+        raise ValueError(f"flush_every must be >= 1 frame, got {flush_every}")
     if system.screener is not None:
         system.screener.reset()
-    rec = RunRecorder(RunWriter(outdir, labels=save_labels), save_labels=save_labels)
-    stamps = np.asarray(sequence.timestamps, float)
-    bar = tqdm(total=n, desc=f"dynslam {sequence.name}", unit="frame", disable=not progress)
-    t_run = time.perf_counter()
-    with blas_single_thread(), bar:
-        for i in range(n):
-            try:
-                frame = sequence[i]
-                res = system.process(frame)
-            except Exception as exc:  # a bad frame must not end the run
-                rec.failed(i, float(stamps[i]), exc)
-                system.mark_lost(i)
-                bar.update()
-                continue
-            rec.frame(i, res, system)
-            if on_frame is not None:
-                on_frame(frame, res)
-            bar.set_postfix(state=res.state, kf=len(system.map.keyframes), lost=len(system.lost_frames), refresh=False)
-            bar.update()
-            if flush_every and (i + 1) % flush_every == 0:
-                rec.write(system, rec.summary(sequence, system, n, complete=False))
-    return _finish(sequence, system, rec, n, t_run)
+    with OutputFolder(outdir, kind="run", force=force) as folder:
+        rec = RunRecorder(RunWriter(folder, labels=save_labels), save_labels=save_labels)
+        stamps = np.asarray(sequence.timestamps, float)
+        bar = tqdm(total=n, desc=f"dynslam {sequence.name}", unit="frame", disable=not progress)
+        t_run = time.perf_counter()
+        try:
+            with blas_single_thread(), bar, FramePrefetcher(sequence, n, prefetch) as frames:
+                t_frame = time.perf_counter()
+                for item in frames:  # frames read ahead on the other core; a bad one arrives as its error
+                    i, frame = item.index, item.frame
+                    try:
+                        if item.error is not None:
+                            raise item.error
+                        _check_size(frame, system.camera)
+                        res = system.process(frame)
+                    except Exception as exc:  # a bad frame must not end the run ...
+                        rec.failed(i, float(stamps[i]), exc)
+                        system.mark_lost(i)
+                        bar.update()
+                        repeating = rec.repeating_error(n)
+                        if repeating:  # ... but an error that will hit every frame does
+                            raise RunStopped(repeating) from None
+                        t_frame = time.perf_counter()
+                        continue
+                    res.timings_ms["read"] = item.wait_ms
+                    res.timings_ms["wall"] = 1e3 * (time.perf_counter() - t_frame)
+                    rec.frame(i, res, system)
+                    if on_frame is not None:
+                        on_frame(frame, res)
+                    bar.set_postfix(state=res.state, kf=len(system.map.keyframes), lost=len(system.lost_frames), refresh=False)
+                    bar.update()
+                    if i == 0 or (i + 1) % flush_every == 0:
+                        rec.write(system, rec.summary(sequence, system, n, complete=False))
+                    t_frame = time.perf_counter()
+            return _finish(sequence, system, rec, n, t_run)
+        except KeyboardInterrupt:
+            summary = _stop(sequence, system, rec, n, t_run, "interrupted",
+                            f"interrupted (Ctrl-C) after {len(rec.rows)} of {n} frames")
+            raise RunInterrupted(
+                f"interrupted after {len(rec.rows)} of {n} frames: the partial run in {folder.path} is consistent "
+                f"(summary.json: complete false); run again with --force to redo it", summary) from None
+        except RunStopped as exc:
+            exc.summary = _stop(sequence, system, rec, n, t_run, "failed", str(exc))
+            raise
+        except Exception as exc:
+            _stop(sequence, system, rec, n, t_run, "failed", f"{type(exc).__name__}: {exc}")
+            raise
+
+
+def _stop(sequence, system: System, rec: RunRecorder, n: int, t_run: float, state: str, why: str) -> dict:
+    """Write the run as it stands after an interruption or a failure: a true ``summary.json``."""
+    with _sigint_deferred():
+        summary = rec.summary(sequence, system, n, complete=False, state=state)
+        summary["stopped"] = why
+        summary["wall_time_s"] = time.perf_counter() - t_run
+        try:
+            rec.write(system, summary)
+        except Exception as exc:  # the system may be half-way through a frame: keep what was written whole
+            log.warning("could not write every file of the partial run: %s", exc)
+            summary["write_error"] = f"{type(exc).__name__}: {exc}"
+            rec.writer.summary(summary)
+    return summary
 
 
 def _finish(sequence, system: System, rec: RunRecorder, n: int, t_run: float) -> dict:
     summary = rec.summary(sequence, system, n, complete=False)
     summary["wall_time_s"] = time.perf_counter() - t_run
-    # Thumbnails of culled keyframes go.
-    keep = {f"{k}.jpg" for k in system.map.keyframes}
-    for p in rec.writer.path("thumbs").glob("*.jpg"):
-        if p.name not in keep:
-            p.unlink()
     # Evaluation against ground truth (ATE/RPE after SE(3) alignment).
     est = system.trajectory()
     if sequence.groundtruth is not None and len(est) >= 2:
@@ -186,14 +361,18 @@ def _finish(sequence, system: System, rec: RunRecorder, n: int, t_run: float) ->
             summary["coverage"] = ev.get("coverage")
         except Exception as exc:  # evaluation must not lose the run
             summary["evaluation_error"] = f"{type(exc).__name__}: {exc}"
-    rec.write(system, summary)
+            log.warning("evaluation against %s failed: %s", Path(sequence.root) / "groundtruth.txt", exc)
+    rec.write(system, summary, final=True)
     # The dense map (another stage; its failure is reported, never fatal).
+    outdir = rec.writer.outdir
     try:
-        path = write_dense_map(sequence, rec.writer.outdir, rec.region_masks or None, system.config.dense_map)
-        summary["dense_map"] = str(path)
+        rec.writer.dense_map(lambda tmp: write_dense_map(sequence, outdir, rec.region_masks or None,
+                                                         system.config.dense_map, path=tmp))
+        summary["dense_map"] = str(outdir / FILES["dense_map"])
     except Exception as exc:
         summary["dense_map_error"] = f"{type(exc).__name__}: {exc}"
         log.warning("dense map failed: %s", exc)
     summary["complete"] = True
+    summary["state"] = "complete"
     rec.writer.summary(summary)
     return summary

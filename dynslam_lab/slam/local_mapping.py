@@ -78,11 +78,17 @@ class LocalMappingConfig:
 
     def __post_init__(self) -> None:
         for name in ("ba_window", "ba_iterations", "ba_every", "capped_ba_window", "capped_ba_iterations",
-                     "fuse_neighbours", "recent_age"):
+                     "fuse_neighbours", "recent_age", "kf_cull_min_obs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LocalMappingConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.ba_max_fixed < 0:
-            raise ValueError(f"LocalMappingConfig.ba_max_fixed must be >= 0, got {self.ba_max_fixed}")
+        for name in ("ba_max_fixed", "cull_min_obs", "cull_age"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"LocalMappingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.fuse_radius > 0:
+            raise ValueError(f"LocalMappingConfig.fuse_radius must be > 0 pixels, got {self.fuse_radius}")
+        for name in ("cull_found_ratio", "kf_cull_redundant"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"LocalMappingConfig.{name} must be in [0, 1], got {getattr(self, name)}")
 
 
 def create_points_from_depth(

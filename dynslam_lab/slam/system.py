@@ -3,7 +3,8 @@
 
 Per frame::
 
-    ORB extraction -> detector.detect(frame) -> screener.screen(frame, uv, detections)
+    ORB extraction || detector.detect(frame)  (side by side: the detector in a worker thread)
+      -> screener.screen(frame, uv, detections)
       -> tracking with the static keypoints only -> keyframe decision
       -> local mapping (new points, fusion, culling, local BA) for a new keyframe
       -> loop_closer.on_keyframe(keyframe, map) for a new keyframe
@@ -19,6 +20,8 @@ keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_
 from __future__ import annotations
 
 import time
+import weakref
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -56,7 +59,8 @@ class FrameResult:
         ``relocalization``, ``initialization`` or ``""``).
     n_features, n_dynamic, n_inliers : keypoints, keypoints judged dynamic, pose inliers.
     timings_ms : per stage milliseconds (``orb``, ``detect``, ``screen``, ``track``,
-        ``local_mapping``, ``loop``, ``total``).
+        ``local_mapping``, ``loop``, ``total`` = the wall time of ``process``; ``detect`` overlaps
+        ``orb``, so the stages may sum to more than ``total``).
     uv : ``(N, 2)`` keypoints; dynamic : ``(N,)`` bool verdict used.
     table : the screener's keypoint table (or None); region_mask : ``(H, W)`` bool or None.
     dynamic_xyz : ``(D, 3)`` world points of dynamic keypoints with depth (tracked frames only).
@@ -138,6 +142,8 @@ class System:
         self.lost_frames: list[int] = []
         self.loop_results: list[Any] = []
         self.loop_edges: list[tuple[int, int]] = []
+        self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
+        self._detect_pool: ThreadPoolExecutor | None = None  # one worker: detection beside ORB
 
     def effective_config(self):
         """The configuration every stage actually runs with: :attr:`config` with the detection,
@@ -153,12 +159,35 @@ class System:
         return replace(self.config, **changes)
 
     # --------------------------------------------------------------- helpers
-    def _screen(self, frame: Frame, feats: Features, t: dict) -> tuple[np.ndarray, Any, Any]:
-        detections = None
-        if self.detector is not None:
-            t0 = time.perf_counter()
-            detections = self.detector.detect(frame)
-            t["detect"] = 1e3 * (time.perf_counter() - t0)
+    def _detect(self, frame: Frame) -> tuple[Any, float]:
+        """The detector on one frame, and its time (ms; in whichever thread runs it)."""
+        t0 = time.perf_counter()
+        detections = self.detector.detect(frame)
+        return detections, 1e3 * (time.perf_counter() - t0)
+
+    def _orb_and_detect(self, frame: Frame, t: dict) -> tuple[Features, Any]:
+        """ORB extraction and detection of one frame; with ``tracking.overlap_detection`` the
+        detector runs in a worker thread meanwhile (onnxruntime and OpenCV release the GIL), so
+        ``t["orb"] + t["detect"]`` may exceed the time both took."""
+        future = None
+        if self.detector is not None and self.config.tracking.overlap_detection:
+            if self._detect_pool is None:
+                self._detect_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-detect")
+                weakref.finalize(self, self._detect_pool.shutdown, wait=False)
+            future = self._detect_pool.submit(self._detect, frame)
+        t0 = time.perf_counter()
+        try:
+            feats = extract_features(frame.gray, self.config.orb)
+        finally:
+            t["orb"] = 1e3 * (time.perf_counter() - t0)
+            detections = None
+            if future is not None:  # waited for even when ORB failed: one frame's detection at a time
+                detections, t["detect"] = future.result()
+        if self.detector is not None and future is None:
+            detections, t["detect"] = self._detect(frame)
+        return feats, detections
+
+    def _screen(self, frame: Frame, feats: Features, detections: Any, t: dict) -> tuple[np.ndarray, Any]:
         dynamic = np.zeros(len(feats), bool)
         table = None
         if self.screener is not None:
@@ -170,7 +199,7 @@ class System:
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
             if len(dynamic) != len(feats):
                 raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
-        return dynamic, table, detections
+        return dynamic, table
 
     def _screening_context(self, feats: Features) -> ScreeningContext:
         """What the screener may use before tracking (``dynamic.context``): the constant-velocity
@@ -226,15 +255,15 @@ class System:
         """Track one RGB-D frame; returns its :class:`FrameResult`."""
         t: dict[str, float] = {"orb": 0.0, "detect": 0.0, "screen": 0.0, "track": 0.0, "local_mapping": 0.0, "loop": 0.0}
         t_start = time.perf_counter()
-        t0 = time.perf_counter()
-        feats = extract_features(frame.gray, self.config.orb)
-        t["orb"] = 1e3 * (time.perf_counter() - t0)
-        dynamic, table, _ = self._screen(frame, feats, t)
+        loop_errors: list[str] = []
+        self._apply_loop_corrections(t, loop_errors)
+        feats, detections = self._orb_and_detect(frame, t)
+        dynamic, table = self._screen(frame, feats, detections, t)
         tc = self.config.tracking
         sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
                           n_dynamic=int(dynamic.sum()), uv=feats.uv, dynamic=dynamic, table=table,
-                          region_mask=getattr(table, "region_mask", None))
+                          region_mask=getattr(table, "region_mask", None), error="; ".join(loop_errors))
         t0 = time.perf_counter()
         kf = None
         new_pts = np.zeros(0, np.int64)
@@ -269,15 +298,15 @@ class System:
                     loop = None
                     res.error = f"loop closing failed: {type(exc).__name__}: {exc}"
                 self.map.invalidate()
-                t["loop"] = 1e3 * (time.perf_counter() - t0)
+                t["loop"] += 1e3 * (time.perf_counter() - t0)
                 if loop is not None:
                     res.loop = loop
                     self.loop_results.append(loop)
                     ids = [int(i) for i in np.asarray(getattr(loop, "keyframe_ids", ()), dtype=np.int64).reshape(-1)]
                     if len(ids) >= 2:
                         self.loop_edges.append((ids[0], ids[1]))
-                    if T_ref_c is not None and kf.id in self.map.keyframes:
-                        # Re-anchor the current frame on its corrected keyframe.
+                    if getattr(loop, "applied", True) and T_ref_c is not None and kf.id in self.map.keyframes:
+                        # Corrected at once (no worker): re-anchor the current frame on its keyframe.
                         sf.T_w_c = self.map.keyframes[kf.id].T_w_c @ T_ref_c
         if sf.T_w_c is not None:
             ref = self.tracker.ref_kf
@@ -295,6 +324,31 @@ class System:
         res.timings_ms = t
         return res
 
+    def _apply_loop_corrections(self, t: dict, errors: list, wait: bool = False) -> None:
+        """Apply the loop corrections the loop closer's worker has finished (all of them when ``wait``),
+        between two frames, and move the last tracked frame with its reference keyframe (ORB-SLAM2
+        keeps each frame relative to its reference keyframe for this)."""
+        if self.loop_closer is None or not getattr(self.loop_closer, "busy", False):
+            return
+        t0 = time.perf_counter()
+        try:
+            applied = self.loop_closer.poll(self.map, wait=wait)
+        except Exception as exc:  # a failed correction must not stop tracking
+            applied = []
+            errors.append(f"loop correction failed: {type(exc).__name__}: {exc}")
+        if applied:
+            self.map.invalidate()
+            last = self.tracker.last
+            if last is not None and last.T_w_c is not None and self._anchors:
+                _, ref, T_ref_c = self._anchors[-1]
+                last.T_w_c = self.map.keyframe_pose(ref) @ T_ref_c
+        t["loop"] = t.get("loop", 0.0) + 1e3 * (time.perf_counter() - t0)
+
+    def finish_loop_closing(self) -> None:
+        """Wait for the loop closer's pending corrections and apply them (the outputs call this first);
+        a correction that failed is recorded in :attr:`loop_errors`."""
+        self._apply_loop_corrections({}, self.loop_errors, wait=True)
+
     def mark_lost(self, index: int) -> None:
         """Record a frame that could not be processed at all (unreadable image)."""
         self.lost_frames.append(int(index))
@@ -302,6 +356,7 @@ class System:
     # --------------------------------------------------------------- outputs
     def trajectory(self) -> Trajectory:
         """Every tracked frame, ``T_w_c = T_w_ref T_ref_c`` with the current keyframe poses."""
+        self.finish_loop_closing()
         if not self._anchors:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         ts = np.array([a[0] for a in self._anchors])
@@ -315,6 +370,7 @@ class System:
 
     def keyframe_arrays(self) -> dict[str, np.ndarray]:
         """Arrays of ``keyframes.npz``: ids, frame_index, timestamps, poses, loop_edges."""
+        self.finish_loop_closing()
         kfs = [self.map.keyframes[k] for k in sorted(self.map.keyframes)]
         edges = set(self.loop_edges)
         for kf in kfs:
@@ -330,5 +386,6 @@ class System:
 
     def map_point_arrays(self) -> dict[str, np.ndarray]:
         """Arrays of ``map_points.npz``: xyz, rgb, n_obs of the alive points."""
+        self.finish_loop_closing()
         ids = self.map.point_ids()
         return {"xyz": self.map.xyz[ids].copy(), "rgb": self.map.rgb[ids].copy(), "n_obs": self.map.n_obs(ids)}

@@ -99,18 +99,41 @@ class TrackingConfig:
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+    overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
-        for name in ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "suspect_translation",
-                     "suspect_rotation_deg"):
+        positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
+                    "suspect_translation", "suspect_rotation_deg")
+        at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
+                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap")
+        non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
+                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers",
+                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
+        ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio")
+        for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        if not 0 <= self.min_depth < self.max_depth:
-            raise ValueError(f"TrackingConfig needs 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
-        for name in ("flood_keyframes", "flood_window", "flood_min_gap", "kf_max_frames"):
+        if not isinstance(self.overlap_detection, bool):
+            raise ValueError(f"TrackingConfig.overlap_detection must be a bool, got {self.overlap_detection!r}")
+        for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
-
+        for name in non_negative:
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ratios:
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"TrackingConfig.{name} must be in (0, 1], got {getattr(self, name)}")
+        if not self.min_depth < self.max_depth:
+            raise ValueError(f"TrackingConfig: min_depth ({self.min_depth}) must be below max_depth ({self.max_depth})")
+        if not -1 <= self.view_cos <= 1:
+            raise ValueError(f"TrackingConfig.view_cos must be in [-1, 1], got {self.view_cos}")
+        if self.pnp_min_inliers < 4:
+            raise ValueError(f"TrackingConfig.pnp_min_inliers must be >= 4 (a PnP pose needs 4 points), got {self.pnp_min_inliers}")
+        if self.kf_min_frames > self.kf_max_frames:
+            raise ValueError(
+                f"TrackingConfig: kf_min_frames ({self.kf_min_frames}) must not exceed kf_max_frames ({self.kf_max_frames})"
+            )
 
 class TrackState:
     """Tracking states (strings, for files and plots)."""

@@ -39,14 +39,15 @@ vector is L1-normalised.
 in ``[0, 1]``; the second form (true for non-negative unit-L1 vectors) only needs the words
 the two images share, which is what the inverted index of the keyframe database delivers.
 
-A vocabulary is saved as one ``.npz`` (arrays below); the package ships a small default one
-trained on the project's synthetic scenes (:func:`default_vocabulary`), and
-``dynslam vocab build SEQDIR...`` trains one on any data.
+A vocabulary is saved as one ``.npz`` (arrays below); the package ships a default one trained on
+varied imagery by the recipe ``resources/vocabulary_recipe.toml`` (:func:`default_vocabulary`;
+:mod:`.vocabulary_recipe`), and ``dynslam vocab build SEQDIR...`` trains one on any data.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -71,7 +72,7 @@ __all__ = [
     "DEFAULT_VOCABULARY_FILE",
 ]
 
-DEFAULT_VOCABULARY_FILE = "orb_vocabulary_synthetic.npz"  # in dynslam_lab/resources/
+DEFAULT_VOCABULARY_FILE = "orb_vocabulary.npz"  # in dynslam_lab/resources/, built from vocabulary_recipe.toml
 _FORMAT_VERSION = 1
 
 
@@ -199,12 +200,32 @@ def bow_score(a: BowVector, b: BowVector) -> float:
 
 
 def bow_score_many(vectors: list[BowVector], n_words: int) -> np.ndarray:
-    """Similarity matrix ``(K, K)`` of the L1 score between all pairs of vectors (for plots)."""
-    dense = np.stack([v.dense(n_words) for v in vectors]) if vectors else np.zeros((0, n_words))
-    # min(a, b) summed over words, one row at a time to bound memory at K * n_words.
-    out = np.empty((len(dense), len(dense)))
-    for i in range(len(dense)):  # loop over keyframes (K), not keypoints
-        out[i] = np.minimum(dense[i][None, :], dense).sum(axis=1)
+    """Similarity matrix ``(K, K)`` of the L1 score between all pairs of vectors (for plots).
+
+    Sparse: the entries ``(word, vector, weight)`` sorted by word give each word's posting list;
+    row ``i`` sums ``min`` over the posting lists of its words only (so a 10^6-word vocabulary costs
+    no more than a small one).
+    """
+    k = len(vectors)
+    out = np.zeros((k, k))
+    if k == 0:
+        return out
+    words = np.concatenate([v.words for v in vectors]).astype(np.int64)
+    if len(words) and (words.min() < 0 or words.max() >= n_words):
+        raise ValueError(f"bow_score_many: word ids outside [0, {n_words})")
+    owner = np.repeat(np.arange(k), [len(v) for v in vectors])
+    weight = np.concatenate([v.weights for v in vectors]).astype(np.float64)
+    order = np.argsort(words, kind="stable")
+    w_sorted, o_sorted, x_sorted = words[order], owner[order], weight[order]
+    for i, v in enumerate(vectors):  # loop over vectors (K), each row vectorised
+        if len(v) == 0:
+            continue
+        lo = np.searchsorted(w_sorted, v.words, side="left")
+        hi = np.searchsorted(w_sorted, v.words, side="right")
+        length = hi - lo
+        idx = np.repeat(lo - (np.cumsum(length) - length), length) + np.arange(int(length.sum()))
+        vals = np.minimum(np.repeat(v.weights, length), x_sorted[idx])
+        out[i] = np.bincount(o_sorted[idx], weights=vals, minlength=k)
     return out
 
 
@@ -296,16 +317,35 @@ class Vocabulary:
         return BowVector(uniq, w / total if total > 0 else w)
 
     # ------------------------------------------------------------------ files
-    def save(self, path: str | Path) -> Path:
-        """Write the vocabulary as one compressed ``.npz``; returns the path."""
+    def save(self, path: str | Path, recipe: str | None = None) -> Path:
+        """Write the vocabulary as one compressed ``.npz``, atomically; returns the path.
+
+        ``recipe`` (text, e.g. the TOML recipe of ``dynslam vocab build``) is stored beside the
+        arrays so the file says how it was made. An existing file is replaced only when it is a
+        vocabulary itself (nothing else is overwritten).
+        """
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        if path.exists():
+            try:
+                with np.load(path, allow_pickle=False) as old:
+                    is_voc = all(k in old.files for k in _KEYS)
+            except (OSError, EOFError, ValueError, AttributeError):
+                is_voc = False
+            if not is_voc:
+                raise ValueError(f"{path}: exists and is not a vocabulary file; refusing to overwrite it")
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {k: getattr(self, k) for k in _ARRAYS}
-        np.savez_compressed(
-            path, format_version=np.int64(_FORMAT_VERSION), n_images=np.int64(self.n_images), **arrays
-        )
+        extra = {} if recipe is None else {"recipe": np.array(recipe)}
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+        try:
+            np.savez_compressed(
+                tmp, format_version=np.int64(_FORMAT_VERSION), n_images=np.int64(self.n_images), **arrays, **extra
+            )
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
 
@@ -355,7 +395,7 @@ _DEFAULT_CACHE: dict[str, Vocabulary] = {}
 
 
 def default_vocabulary() -> Vocabulary:
-    """The small vocabulary shipped in ``dynslam_lab/resources/`` (trained on synthetic scenes).
+    """The vocabulary shipped in ``dynslam_lab/resources/`` (built by ``resources/vocabulary_recipe.toml``).
 
     Loaded once per process and shared (a :class:`Vocabulary` is immutable).
     """

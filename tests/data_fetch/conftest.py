@@ -19,6 +19,9 @@ class FileServer:
         self.ignore_if_range = False  # a server that resumes whatever the validator says
         self.send_etag = True  # ETag: a strong validator derived from the content
         self.redirects: dict[str, str] = {}  # path -> absolute path to redirect to (302)
+        self.stall_before: set[str] = set()  # paths answered with silence (until close)
+        self.stall_after: dict[str, int] = {}  # path -> bytes sent before falling silent (until close)
+        self.release = threading.Event()  # ends every stall
         self.requests: list[tuple[str, str | None]] = []  # (path, Range header)
         self.if_ranges: list[str | None] = []  # If-Range header of each request
         server = self
@@ -31,6 +34,9 @@ class FileServer:
 
             def do_GET(self):
                 path = self.path.lstrip("/")
+                if path in server.stall_before:
+                    server.release.wait(30)
+                    return
                 rng = self.headers.get("Range")
                 server.requests.append((path, rng))
                 server.if_ranges.append(self.headers.get("If-Range"))
@@ -69,6 +75,11 @@ class FileServer:
                 self.send_header("Content-Length", str(len(body)))
                 self.send_header("Content-Type", "application/octet-stream")
                 self.end_headers()
+                if path in server.stall_after:
+                    self.wfile.write(body[: server.stall_after[path]])
+                    self.wfile.flush()
+                    server.release.wait(30)
+                    return
                 cut = server.cut_after.pop(path, None)
                 if cut is not None:
                     self.wfile.write(body[:cut])
@@ -85,6 +96,7 @@ class FileServer:
         self.thread.start()
 
     def close(self) -> None:
+        self.release.set()
         self.httpd.shutdown()
         self.httpd.server_close()
         self.thread.join(timeout=5)

@@ -190,3 +190,60 @@ def test_extract_again_over_a_previous_extraction(tmp_path):
     assert all((out / name).read_bytes() == data for name, data in members.items())
     assert (out / "seq" / "results.txt").read_text() == "kept"
     assert sorted(p.name for p in out.iterdir()) == ["seq"]
+
+
+def _dir(name: str) -> tuple[tarfile.TarInfo, None]:
+    info = tarfile.TarInfo(name)
+    info.type = tarfile.DIRTYPE
+    return info, None
+
+
+_DEEP = "/".join(f"d{i}" for i in range(12))
+
+
+@pytest.mark.parametrize(
+    "members, message",
+    [
+        # up -> x/.. before x -> ..: root resolves to the destination's grand-parent, then /
+        ([_link("root", "a/up/../.."), _dir("a"), _link("a/up", "x/.."), _link("a/x", "..")],
+         r"'root' -> 'a/up/\.\./\.\.' points through another link \(a/up\)"),
+        ([_dir("a"), _link("a/up", "x/.."), _link("a/x", ".."), _link("root", "a/up/../..")],
+         r"'a/up' -> 'x/\.\.' points through another link \(a/x\)"),
+        # twelve levels deep: s climbs back twelve folders, root climbs twelve more through it
+        ([_link("root", _DEEP + "/s/" + "../" * 12), _dir(_DEEP), _link(_DEEP + "/s", "../" * 12)],
+         r"'root' -> 'd0/d1/.*' points through another link \(d0/d1/d2/d3/d4/d5/d6/d7/d8/d9/d10/d11/s\)"),
+        # a link to a link's inside, and a member written through an in-tree link
+        ([_link("l", "seq"), _dir("seq"), _link("m", "l/rgb")], r"'m' -> 'l/rgb' points through another link \(l\)"),
+        ([_dir("seq"), _link("l", "seq"), _file("l/x.txt")], r"'l/x\.txt' would be written through the link 'l'"),
+        # hard links: only to a regular file of the archive
+        ([_link("h", "nowhere", tarfile.LNKTYPE)], "does not name a regular file of the archive"),
+    ],
+    ids=["two-step", "two-step-ordered", "twelve-deep", "link-through-link", "file-through-link", "hardlink-missing"],
+)
+def test_link_chains_are_judged_against_the_final_tree(tmp_path, members, message):
+    """Issue 13 item 4: links that are harmless one by one but escape together are refused, and
+    nothing (no link, no folder) is planted in the destination."""
+    arc = _tar(tmp_path / "chain.tgz", members)
+    out = tmp_path / "x" / "y" / "out"
+    with pytest.raises(UnsafeArchiveError, match=message):
+        safe_extract(arc, out)
+    assert list(out.iterdir()) == []
+
+
+def test_links_chained_inside_the_tree_are_fine(tmp_path):
+    arc = _tar(tmp_path / "ok.tgz", [_dir("seq"), _file("seq/rgb/1.png", b"png"), _link("seq/latest", "rgb/1.png"),
+                                     _link("newest", "seq/latest"), _link("seq/up", "../seq/rgb")])
+    out = tmp_path / "out"
+    safe_extract(arc, out)
+    assert (out / "newest").read_bytes() == b"png" and (out / "seq" / "up" / "1.png").read_bytes() == b"png"
+
+
+def test_a_link_already_in_the_destination_is_not_written_through(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (out / "data").symlink_to(tmp_path / "elsewhere")  # left by someone else
+    arc = _tar(tmp_path / "a.tgz", [_file("data/evil.txt")])
+    with pytest.raises(UnsafeArchiveError, match="member 'data/evil.txt' would be written (outside|through)"):
+        safe_extract(arc, out)
+    assert list((tmp_path / "elsewhere").iterdir()) == []

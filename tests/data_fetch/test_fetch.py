@@ -19,6 +19,7 @@ from data_fetch import (
     CatalogError,
     ChecksumError,
     CorruptArchiveError,
+    UnsafeArchiveError,
     DownloadError,
     fetch,
     get_entry,
@@ -202,3 +203,43 @@ def test_corrupt_archive_is_named_removed_and_not_recorded(http_server, tmp_path
     http_server.files[TGZ] = data
     assert main(["get", "fr3_walking_xyz", "--dest", str(tmp_path), "--quiet"]) == 0
     assert read_manifest(tmp_path)["fr3_walking_xyz"]["sha256"] == hashlib.sha256(data).hexdigest()
+
+
+def test_a_stalled_server_is_named_and_the_timeout_is_the_users(http_server, tmp_path, monkeypatch, capsys):
+    """Issue 13 item 11: not "are you offline?" after 30 s, but what stalled, after --timeout."""
+    monkeypatch.setitem(BASE_URLS, "tum", http_server.url)
+    data = _big_tgz(seed=3)
+    http_server.files[TGZ] = data
+    http_server.stall_before.add(TGZ)
+    assert main(["get", "fr3_walking_xyz", "--dest", str(tmp_path), "--quiet", "--timeout", "0.3"]) == 1
+    err = capsys.readouterr().err
+    assert f"127.0.0.1:{http_server.port} did not answer within 0.3 s" in err and "--timeout" in err
+    assert "offline" not in err
+    http_server.stall_before.clear()
+    http_server.stall_after[TGZ] = 30_000
+    with pytest.raises(DownloadError, match=r"transfer stalled: no data for 0\.3 s after 30000 bytes; run again to resume"):
+        fetch("fr3_walking_xyz", tmp_path, progress=False, timeout=0.3)
+    del http_server.stall_after[TGZ]
+    res = fetch("fr3_walking_xyz", tmp_path, progress=False, timeout=5)  # resumes where it stalled
+    assert http_server.requests[-1] == (TGZ, "bytes=30000-") and res.sha256 == hashlib.sha256(data).hexdigest()
+    with pytest.raises(SystemExit) as exc:  # a usage error, like argparse's own
+        main(["get", "fr3_walking_xyz", "--dest", str(tmp_path), "--timeout", "0"])
+    assert exc.value.code == 2
+
+
+def test_a_link_chain_in_a_fetched_archive_plants_nothing(http_server, tmp_path, monkeypatch):
+    """Issue 13 item 4 end to end: a chain built in two steps leaves no link in the destination."""
+    monkeypatch.setitem(BASE_URLS, "tum", http_server.url)
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tf:
+        for name, kind, target in (("root", tarfile.SYMTYPE, "a/up/../.."), ("a", tarfile.DIRTYPE, ""),
+                                   ("a/up", tarfile.SYMTYPE, "x/.."), ("a/x", tarfile.SYMTYPE, "..")):
+            info = tarfile.TarInfo(name)
+            info.type, info.linkname = kind, target
+            tf.addfile(info)
+    http_server.files[TGZ] = buf.getvalue()
+    dest = tmp_path / "data"
+    with pytest.raises(UnsafeArchiveError, match=r"'root' -> 'a/up/\.\./\.\.' points through another link \(a/up\)"):
+        fetch("fr3_walking_xyz", dest, progress=False)
+    assert not any(p.is_symlink() for p in dest.rglob("*")) and read_manifest(dest) == {}
+    assert main(["get", "fr3_walking_xyz", "--dest", str(dest), "--quiet"]) == 1

@@ -382,6 +382,30 @@ def test_cli_lists_and_renders(tmp_path, capsys):
     assert "unknown preset" in capsys.readouterr().err
 
 
+def test_cli_synth_never_overwrites_a_users_files(tmp_path, capsys):
+    """A folder holding someone's rgb.txt, or a file, is refused and left as it was; --force replaces
+    only a sequence synth itself wrote."""
+    from dynslam_lab.cli import main
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "rgb.txt").write_text("my own list\n")
+    assert main(["synth", "static_rpy", str(mine), "--frames", "2", "--quiet"]) == 2
+    assert (mine / "rgb.txt").read_text() == "my own list\n" and sorted(p.name for p in mine.iterdir()) == ["rgb.txt"]
+    assert main(["synth", "static_rpy", str(mine), "--frames", "2", "--quiet", "--force"]) == 2
+    assert (mine / "rgb.txt").read_text() == "my own list\n"
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    assert main(["synth", "static_rpy", str(a_file), "--frames", "2", "--quiet"]) == 2
+    assert a_file.read_text() == "x"
+    out = tmp_path / "seq"
+    assert main(["synth", "static_rpy", str(out), "--frames", "2", "--quiet"]) == 0
+    assert main(["synth", "static_rpy", str(out), "--frames", "3", "--quiet"]) == 2
+    assert main(["synth", "static_rpy", str(out), "--frames", "3", "--quiet", "--force"]) == 0
+    assert len(TumSequence(out)) == 3
+    capsys.readouterr()
+
+
 def test_truth_views_rebuild_the_renderer_from_the_sequence():
     """truth_views: the stored frame, its true pose (ground truth file), the exact depth of a fresh
     renderer, and the mask of the instances instances.json calls moving."""

@@ -169,6 +169,12 @@ def test_movers_stop_and_start_enter_from_outside_and_carry(scene):
     np.testing.assert_allclose(rel[0], rel[1], atol=1e-9)
     np.testing.assert_allclose(rel[0], rel[2], atol=1e-9)
     assert np.linalg.norm(carrier.reference(4.5) - carrier.reference(0.0)) > 0.5
+    # people turn round at the ends of their paths in 0.7 s, 1.2 s with a box in their arms (the box then
+    # swings round, but not faster than the 2 m/s of the fastest movers)
+    for m, turn in ((person, 0.7), (carrier, 1.2)):
+        assert m.plan.turn == turn
+    ref = np.array([box.reference(t) for t in np.arange(0.0, 60.0, 0.01)])
+    assert np.linalg.norm(np.diff(ref, axis=0), axis=1).max() / 0.01 < 2.0
     # a detector names the people, never the boxes
     f = r.render(120, noise=False)
     det = instances_to_detections(f.instance_mask, {i: c for i, (c, _) in r.instances.items()})
@@ -325,7 +331,7 @@ def test_cli_renders_random_scenes_with_and_without_movers(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "boxes_xyz" in out and "loop_photo" in out and "random" in out
     args = ["--seed", "9", "--motion", "static", "--kinds", "box,person", "--style", "flat", "--frames", "2", "--quiet"]
-    assert main(["synth", "random", str(tmp_path / "m"), *args]) == 0
+    assert main(["synth", "random", *args, str(tmp_path / "m")]) == 0  # options before or after OUTDIR
     assert main(["synth", "random", str(tmp_path / "n"), *args, "--no-movers"]) == 0
     inst_m = json.loads((tmp_path / "m" / "instances.json").read_text())
     assert sorted(v["class"] for v in inst_m.values()) == ["box", "person"]

@@ -62,7 +62,7 @@ def test_missing_file_and_no_overlap(tmp_path, files, capsys):
 
 def test_bad_delta(files, capsys):
     g, e = files
-    assert main(["eval", "--gt", str(g), "--est", str(e), "--delta", "1.5"]) == 1
+    assert main(["eval", "--gt", str(g), "--est", str(e), "--delta", "1.5"]) == 2  # usage error
     assert "whole number" in capsys.readouterr().err
 
 
@@ -78,3 +78,40 @@ def test_all_pairs_and_no_alignment(files, capsys):
     assert out["rpe"]["all_pairs"] is True and out["rpe"]["trans"]["n"] == len(rpe.trans_errors)
     assert out["rpe"]["trans"]["rmse"] == pytest.approx(rpe.trans.rmse, abs=1e-12)
     assert out["align"]["method"] == "none" and out["max_diff"] == 0.01
+
+
+def _with_row_repeated(path, k, pose_from=None):
+    """The file with data row ``k`` repeated after itself (another pose when ``pose_from`` is a row)."""
+    lines = path.read_text().splitlines()
+    rows = [i for i, ln in enumerate(lines) if ln and not ln.startswith("#")]
+    ts = lines[rows[k]].split()[0]
+    dup = ts + " " + " ".join(lines[rows[pose_from if pose_from is not None else k]].split()[1:])
+    lines.insert(rows[k] + 1, dup)
+    out = path.with_name(path.stem + "_dup.txt")
+    out.write_text("\n".join(lines) + "\n")
+    return out, rows[k] + 1, rows[k] + 2
+
+
+@pytest.mark.parametrize("which", ["est", "gt"])
+def test_duplicate_timestamps_are_an_error_naming_the_lines(files, capsys, which):
+    """Issue 13 item 8: one duplicated row (another pose at the same time) is refused, naming both
+    lines; --dedupe first keeps the first row of each and equals the file without the duplicate."""
+    g, e = files
+    clean = json.loads(json.dumps(evaluate(read_tum_trajectory(g), read_tum_trajectory(e))))
+    src = e if which == "est" else g
+    bad, line_a, line_b = _with_row_repeated(src, 40, pose_from=10)
+    args = {"gt": str(g), "est": str(e), which: str(bad)}
+    assert main(["eval", "--gt", args["gt"], "--est", args["est"], "--json"]) == 1
+    err = capsys.readouterr().err
+    assert f"{bad.name}: 1 duplicated timestamp(s)" in err and f"on lines {line_a} and {line_b}" in err
+    assert "--dedupe first" in err and err.count("\n") == 1
+    assert main(["eval", "--gt", args["gt"], "--est", args["est"], "--json", "--dedupe", "first"]) == 0
+    assert json.loads(capsys.readouterr().out)["ate"]["rmse"] == pytest.approx(clean["ate"]["rmse"], abs=1e-12)
+
+
+def test_json_output_is_strict(files, capsys):
+    g, e = files
+    assert main(["eval", "--gt", str(g), "--est", str(e), "--json"]) == 0
+    text = capsys.readouterr().out
+    assert "NaN" not in text and "Infinity" not in text
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))

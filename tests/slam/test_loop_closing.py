@@ -180,12 +180,15 @@ def drifted(T_gt: np.ndarray, seed: int) -> np.ndarray:
 
 
 def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, seed: int = 0,
-                   config: LoopClosingConfig = LoopClosingConfig(global_ba=False), per_kf: int = 600):
+                   config: LoopClosingConfig = LoopClosingConfig(global_ba=False, background=False), per_kf: int = 600,
+                   apply_in_loop: bool = False):
     """Keyframes around a cylindrical room of random landmarks, with drifting pose estimates.
 
     Map points are reused for landmarks seen in the last 3 keyframes; a landmark seen again
     after longer gets a new (duplicate) point, like tracking without loop closure.
-    Returns (closer, map, T_gt (K,4,4), T_est_before (K,4,4)).
+    With a background closer and ``apply_in_loop``, a started correction is waited for and applied
+    right after the keyframe (as the synchronous closer does).
+    Returns (closer, map, T_gt (K,4,4), T_est_before (K,4,4), results).
     """
     rng = np.random.default_rng(seed)
     n_lm = 4000
@@ -232,6 +235,8 @@ def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, see
             lm_point[lm] = (lm_point[lm][0], k)
         mp.update_geometry(mp.point_ids())
         r = closer.on_keyframe(kf, mp)
+        if apply_in_loop and closer.busy:
+            closer.wait(mp)
         if r is not None:
             results.append(r)
             # after a loop the tracker would continue from the corrected pose: so does the generator
@@ -248,7 +253,7 @@ def _ate(T_est: np.ndarray, T_gt: np.ndarray) -> float:
 
 @pytest.mark.parametrize("global_ba", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["pose_graph", "global_ba"])
 def test_loop_closer_closes_drifting_loop_and_reduces_error(global_ba):
-    cfg = LoopClosingConfig(global_ba=global_ba)
+    cfg = LoopClosingConfig(global_ba=global_ba, background=False)
     closer, mp, T_gt, T_before, results = run_loop_scene(400.0, 44, config=cfg, per_kf=600 if not global_ba else 250)
     assert len(results) >= 1
     r = results[0]

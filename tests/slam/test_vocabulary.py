@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -157,11 +158,20 @@ def test_save_load_roundtrip_and_errors(tmp_path):
         voc.transform(np.zeros((3, 16), np.uint8))
 
 
-def test_default_vocabulary_ships_small():
+def test_default_vocabulary_ships_small_and_records_its_recipe():
+    from importlib import resources
+
+    from dynslam_lab.slam.vocabulary import DEFAULT_VOCABULARY_FILE
+    from dynslam_lab.slam.vocabulary_recipe import vocabulary_recipe
+
     voc = default_vocabulary()
-    assert voc.n_words >= 500
-    assert voc.branching >= 2
+    assert voc.n_words >= 10_000 and voc.branching >= 2 and voc.depth <= 6
     assert np.all(voc.idf >= 0)
+    with resources.as_file(resources.files("dynslam_lab").joinpath("resources", DEFAULT_VOCABULARY_FILE)) as p:
+        assert p.stat().st_size < 5e6  # a few MB at most
+        stored = vocabulary_recipe(p)
+    with resources.as_file(resources.files("dynslam_lab").joinpath("resources", "vocabulary_recipe.toml")) as r:
+        assert stored == r.read_text()  # the shipped file was built by the shipped recipe
 
 
 def _tum_descriptors(path):
@@ -327,7 +337,71 @@ def test_vocab_build_command(tmp_path, capsys):
     assert main(["vocab", "info", str(out)]) == 0
     assert "words per level" in capsys.readouterr().out
     # bad input: one clear line naming the parameter
-    assert main(["vocab", "build", str(seq), "--out", str(out), "--stride", "0"]) == 1
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path / "other.npz"), "--stride", "0"]) == 1
     assert "--stride" in capsys.readouterr().err
+    # never over a folder (once wrote FOLDER.npz), a user's file, or without the suffix
+    before = out.read_bytes()
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err and not Path(str(tmp_path) + ".npz").exists()
+    assert main(["vocab", "build", str(seq), "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["vocab", "build", str(seq), "--out", str(tmp_path / "vocab")]) == 2
+    assert ".npz" in capsys.readouterr().err and not (tmp_path / "vocab.npz").exists()
     assert main(["vocab", "info", str(tmp_path / "nope.npz")]) == 1
     assert "nope.npz" in capsys.readouterr().err
+
+
+def test_bow_score_many_equals_pairwise_scores():
+    """The sparse similarity matrix against the pairwise L1 score (DBoW2 eq. 2), empty vectors included."""
+    rng = np.random.default_rng(0)
+    vectors = []
+    for _ in range(20):
+        w = np.unique(rng.integers(0, 500, rng.integers(0, 80)))
+        x = rng.random(len(w))
+        vectors.append(BowVector(w, x / max(x.sum(), 1e-12)))
+    S = bow_score_many(vectors, 500)
+    ref = np.array([[bow_score(a, b) for b in vectors] for a in vectors])
+    np.testing.assert_allclose(S, ref, atol=1e-12)
+    with pytest.raises(ValueError, match="word ids"):
+        bow_score_many([BowVector(np.array([600]), np.array([1.0]))], 500)
+
+
+def test_recipe_build_is_reproducible(tmp_path, capsys):
+    """A small recipe (matplotlib's photographs and a missing image glob) builds the same vocabulary
+    twice; the recipe text travels inside the .npz; bad recipes are named."""
+    from dynslam_lab.cli import main as cli_main
+    from dynslam_lab.slam.vocabulary_recipe import build_vocabulary, read_recipe, vocabulary_recipe
+
+    text = """
+[vocabulary]
+branching = 4
+depth = 2
+n_features = 300
+seed = 3
+
+[[source]]
+kind = "matplotlib"
+files = ["grace_hopper.jpg"]
+reliefs = 2
+scales = [1.0, 0.5]
+
+[[source]]
+kind = "images"
+paths = ["%s/nothing_here/*.png"]
+""" % tmp_path
+    rp = tmp_path / "recipe.toml"
+    rp.write_text(text)
+    recipe = read_recipe(rp)
+    a = build_vocabulary(recipe, log=lambda s: None)
+    b = build_vocabulary(recipe, log=lambda s: None)
+    np.testing.assert_array_equal(a.centres, b.centres)
+    np.testing.assert_array_equal(a.idf, b.idf)
+    assert a.n_images == 6  # 1 photograph + 2 reliefs, 2 scales each
+    assert cli_main(["vocab", "build", "--recipe", str(rp), "--out", str(tmp_path / "v.npz")]) == 0
+    assert vocabulary_recipe(tmp_path / "v.npz") == text
+    np.testing.assert_array_equal(load_vocabulary(tmp_path / "v.npz").centres, a.centres)
+    assert "none found" in capsys.readouterr().out
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[source]]\nkind = "video"\n')
+    with pytest.raises(ValueError, match="bad.toml.*video"):
+        read_recipe(bad)

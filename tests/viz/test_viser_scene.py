@@ -211,7 +211,7 @@ def test_view_command_reports_bad_folders(tmp_path, capsys):
 
     assert main(["view", str(tmp_path / "missing"), "--timeout", "0"]) == 1
     assert "missing: run folder not found" in capsys.readouterr().err
-    assert main(["view", str(tmp_path), "--port", "0"]) == 1
+    assert main(["view", str(tmp_path), "--port", "0"]) == 2  # a usage error (docs/reliability.md)
     assert "--port must be in 1..65535" in capsys.readouterr().err
 
 

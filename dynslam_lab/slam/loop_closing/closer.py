@@ -1,0 +1,226 @@
+"""The loop closer: detection, verification and correction for each new keyframe.
+
+``LoopCloser.on_keyframe(keyframe, map)`` is called by the system for every new keyframe: it
+queries the keyframe database and checks consistency (:mod:`.detection`), verifies the consistent
+candidates (:mod:`.verification`) and, for an accepted loop, snapshots the map and starts the
+correction (:mod:`.correction`), in a worker thread by default. ``LoopCloser.poll(map)``, called
+by the system before each frame, applies the corrections that have finished; ``wait(map)`` applies
+all of them (end of a run).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...camera import PinholeCamera
+from ..keyframe_database import KeyframeDatabase, LoopCandidate, static_bow
+from ..vocabulary import BowVector, Vocabulary, default_vocabulary
+from .config import LoopClosingConfig
+from .correction import LoopCorrector, apply_correction, run_global_ba, run_loop_correction, take_snapshot
+from .detection import LoopDetector
+from .verification import CandidateCheck, verify_candidate
+
+__all__ = ["LoopResult", "LoopCloser"]
+
+
+@dataclass
+class LoopResult:
+    """An accepted loop.
+
+    Attributes
+    ----------
+    query_kf_id : the new keyframe that closed the loop.
+    loop_kf_id : the old keyframe it matched.
+    T_query_loop : ``(4, 4)`` verified relative pose (loop camera in the query camera).
+    correction : ``(4, 4)`` ``T_w_query^new (T_w_query^old)^-1`` the loop implies.
+    n_matches, n_inliers, n_map_matches : descriptor matches, RANSAC inliers, map point matches.
+    checks : the verification's measurements (spread, depth spread, path, correction size, neighbours).
+    n_fused : map points merged when the correction was applied.
+    corrected_kf_ids : keyframes the correction moved (filled when applied).
+    applied : the pose-graph correction has been applied to the map; ``global_ba_applied`` likewise.
+    timings_ms : ``query``, ``verify``, ``snapshot`` (frame loop), ``correct`` (worker: pose graph),
+        ``apply`` (frame loop), ``global_ba`` (worker), ``apply_global_ba`` (frame loop).
+    """
+
+    query_kf_id: int
+    loop_kf_id: int
+    T_query_loop: np.ndarray
+    correction: np.ndarray
+    n_matches: int
+    n_inliers: int
+    n_map_matches: int
+    checks: dict = field(default_factory=dict)
+    n_fused: int = 0
+    corrected_kf_ids: list[int] = field(default_factory=list)
+    applied: bool = False
+    global_ba_applied: bool = False
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def keyframe_ids(self) -> tuple[int, int]:
+        """The loop edge of the keyframe graph, older keyframe first: ``(loop_kf_id, query_kf_id)``."""
+        return (min(self.loop_kf_id, self.query_kf_id), max(self.loop_kf_id, self.query_kf_id))
+
+
+def _timed(fn, key: str, result: LoopResult):
+    """``fn`` wrapped to record its duration in ``result.timings_ms[key]`` (runs in the worker)."""
+    def run():
+        t0 = time.perf_counter()
+        out = fn()
+        result.timings_ms[key] = 1e3 * (time.perf_counter() - t0)
+        return out
+    return run
+
+
+class LoopCloser:
+    """ORB-SLAM2's loop closing: detection and verification per keyframe, correction off the frame loop.
+
+    Parameters
+    ----------
+    config : thresholds (:class:`~.config.LoopClosingConfig`).
+    camera : the sequence's intrinsics (refinement and global BA reproject with them).
+    bf : virtual stereo baseline x fx (px m) of the ``u_R`` residual: the tracking's ``bf``.
+    vocabulary : the binary vocabulary; default: the one shipped with the package.
+
+    Attributes
+    ----------
+    database : the keyframe database (static words of every keyframe seen).
+    loops : accepted loops, in order.
+    query_ms : ``(kf_id, ms)`` of every candidate query (BoW + database + consistency).
+    stage_ms : ``(kf_id, ms)`` of every ``on_keyframe`` call (the loop stage of the frame loop).
+    rejected : ``(query id, candidate id, reason, stats)`` of every candidate that failed verification.
+    """
+
+    def __init__(self, config: LoopClosingConfig, camera: PinholeCamera, bf: float, vocabulary: Vocabulary | None = None):
+        self.config = config
+        self.camera = camera
+        self.bf = float(bf)
+        self.vocabulary = vocabulary if vocabulary is not None else default_vocabulary()
+        self.database = KeyframeDatabase(self.vocabulary.n_words)
+        self.detector = LoopDetector(config, self.database)
+        self.corrector = LoopCorrector(config.background)
+        self.loops: list[LoopResult] = []
+        self.query_ms: list[tuple[int, float]] = []
+        self.stage_ms: list[tuple[int, float]] = []
+        self.rejected: list[tuple[int, int, str, dict]] = []
+        self.errors: list[str] = []
+        self._last_loop_kf = -1
+        self._rng = np.random.default_rng(self.config.seed)
+
+    @property
+    def last_candidates(self) -> list[LoopCandidate]:
+        """The database's candidates for the last keyframe queried."""
+        return self.detector.last_candidates
+
+    @property
+    def loop_edges(self) -> list[tuple[int, int]]:
+        """``(query_kf_id, loop_kf_id)`` of every accepted loop."""
+        return [(r.query_kf_id, r.loop_kf_id) for r in self.loops]
+
+    @property
+    def busy(self) -> bool:
+        """A correction is being computed or waits to be applied."""
+        return self.corrector.busy
+
+    def keyframe_bow(self, kf) -> BowVector:
+        """BoW vector of a keyframe from its static keypoints only."""
+        return static_bow(self.vocabulary, kf)
+
+    # ------------------------------------------------------------------ frame loop
+    def on_keyframe(self, keyframe, map) -> LoopResult | None:  # noqa: A002 - the contract's name
+        """Detect and verify a loop for a new keyframe (already inserted in ``map``); start its correction.
+
+        The keyframe is added to the database whatever the outcome. No loop is searched while a
+        correction is pending. With ``config.background`` False the correction is applied before
+        returning; else :meth:`poll` applies it later.
+        """
+        cfg = self.config
+        if not cfg.enabled:
+            return None
+        t0 = time.perf_counter()
+        bow = self.keyframe_bow(keyframe)
+        self.database.prune(map.keyframes)
+        result = None
+        far_enough = keyframe.id >= max(cfg.min_keyframes_between, self._last_loop_kf + cfg.min_keyframes_between)
+        if not self.busy and far_enough and len(map.keyframes) > cfg.min_keyframes_between and len(bow):
+            accepted = self.detector.detect(keyframe, map, bow)
+            q_ms = 1e3 * (time.perf_counter() - t0)
+            self.query_ms.append((int(keyframe.id), q_ms))
+            for cand_id in accepted:
+                t1 = time.perf_counter()
+                check = verify_candidate(keyframe, map, cand_id, cfg, self.camera, self.bf, self._rng)
+                if not check.accepted:
+                    self.rejected.append((int(keyframe.id), int(cand_id), check.reason, check.stats))
+                    continue
+                result = self._start(keyframe, map, cand_id, check, q_ms, 1e3 * (time.perf_counter() - t1))
+                break
+        if keyframe.id not in self.database:
+            self.database.add(keyframe.id, bow)
+        if result is not None:
+            self.loops.append(result)
+            self._last_loop_kf = keyframe.id
+            self.detector.reset()
+            if not cfg.background:
+                self.poll(map)
+        self.stage_ms.append((int(keyframe.id), 1e3 * (time.perf_counter() - t0)))
+        return result
+
+    def _start(self, kf, mp, cand_id: int, check: CandidateCheck, q_ms: float, v_ms: float) -> LoopResult:
+        t0 = time.perf_counter()
+        snap = take_snapshot(mp)
+        current_group = [kf.id] + [k for k in mp.covisibility(kf.id)]
+        result = LoopResult(
+            query_kf_id=int(kf.id), loop_kf_id=int(cand_id), T_query_loop=check.T_q_c, correction=check.correction,
+            n_matches=int(check.stats.get("matches", 0)), n_inliers=int(check.stats.get("inliers", 0)),
+            n_map_matches=int(len(check.ip)), checks=dict(check.stats),
+            timings_ms={"query": q_ms, "verify": v_ms},
+        )
+        job = (snap, int(kf.id), int(cand_id), check.correction, current_group, check.group, check.pids[check.ip],
+               check.ik, self.config)
+        result.timings_ms["snapshot"] = 1e3 * (time.perf_counter() - t0)
+        self.corrector.submit(_timed(lambda: run_loop_correction(*job), "correct", result), ("pose_graph", result))
+        return result
+
+    def poll(self, map, wait: bool = False) -> list[LoopResult]:  # noqa: A002 - the contract's name
+        """Apply the corrections that have finished (all pending ones when ``wait``); returns the loops
+        whose pose-graph or global-BA correction was applied now. The global BA of a loop starts
+        (on a fresh snapshot) once its pose-graph correction is applied."""
+        applied: list[LoopResult] = []
+        while True:
+            done = self.corrector.poll(wait=wait)
+            if not done:
+                return applied
+            for corr, (kind, result) in done:
+                t0 = time.perf_counter()
+                changed = apply_correction(map, corr)
+                ms = 1e3 * (time.perf_counter() - t0)
+                if kind == "pose_graph":
+                    result.applied, result.corrected_kf_ids = True, changed
+                    result.n_fused = int(corr.stats.get("fused", 0))
+                    result.timings_ms["apply"] = ms
+                    if self.config.global_ba:
+                        self._start_global_ba(map, result)
+                else:
+                    result.global_ba_applied = True
+                    result.checks.update({k: v for k, v in corr.stats.items() if k.startswith("gba")})
+                    result.timings_ms["apply_global_ba"] = ms
+                if result not in applied:
+                    applied.append(result)
+
+    def _start_global_ba(self, mp, result: LoopResult) -> None:
+        snap = take_snapshot(mp)
+        fixed = {result.loop_kf_id}
+        cam, bf, it = self.camera, self.bf, self.config.global_ba_iterations
+        self.corrector.submit(_timed(lambda: run_global_ba(snap, fixed, cam, bf, it), "global_ba", result),
+                              ("global_ba", result))
+
+    def wait(self, map) -> list[LoopResult]:  # noqa: A002 - the contract's name
+        """Block until every pending correction is computed, and apply them all."""
+        return self.poll(map, wait=True)
+
+    def close(self) -> None:
+        """Stop the worker thread (pending jobs finish first)."""
+        self.corrector.close()

@@ -1,0 +1,364 @@
+"""Loop correction: essential-graph optimisation and global BA, computed off the frame loop.
+
+ORB-SLAM2 (Mur-Artal and Tardos 2017, Sec. V-B/C; ORB-SLAM, T-RO 2015, Sec. VII-C/D) corrects an
+accepted loop in its loop-closing thread while tracking goes on, and runs the global bundle
+adjustment in yet another thread; when the BA finishes, the map is locked, the optimised poses are
+written back and the keyframes made since are moved along the spanning tree. Ours follows that:
+
+1. **Snapshot** (frame loop, a few ms): keyframe poses, parents and loop edges, the observation
+   table, point positions and reference keyframes are copied (:func:`take_snapshot`); keyframe
+   objects are shared read-only (their keypoints, depths and descriptors never change).
+2. **Compute** (worker thread, :class:`LoopCorrector`): the current keyframe ``K_i`` and its
+   covisible keyframes jump by the loop correction ``C = T_w_i^new (T_w_i)^-1``; the loop group's
+   points are searched in those keyframes (3D, as :func:`.verification.match_points_3d`); the
+   essential graph (new loop links, spanning tree, covisibility edges with ``>= 100`` shared points,
+   earlier loops) is optimised in SE(3) with the loop keyframe fixed
+   (:func:`~dynslam_lab.slam.pose_graph.optimize_pose_graph`; :func:`essential_graph`).
+3. **Apply** (frame loop, between two frames, :func:`apply_correction`): each keyframe of the
+   snapshot gets its correction ``D_k = T_k^new (T_k^old)^-1`` applied to its *current* pose (what
+   local BA did since is kept); keyframes made since the snapshot take the correction of their
+   nearest ancestor in the spanning tree (ORB-SLAM2 does this after its global BA); every map point
+   moves with its reference keyframe; the matched points of the two sides are fused.
+4. **Global BA** (worker again, on a fresh snapshot, :func:`run_global_ba`): every keyframe and
+   point, the loop keyframe and the map origin fixed; applied the same way (points in the BA take
+   its positions, points made since move with their reference keyframe).
+
+With ``config.background = False`` the same jobs run at once inside ``on_keyframe`` (deterministic
+results for tests and notebooks; the frame that closes the loop then waits for them).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import csr_matrix
+
+from ...camera import PinholeCamera
+from ...geometry.se3 import se3_inv, transform_points
+from ..local_mapping import gather_observations, replace_points
+from ..optimize import local_bundle_adjustment
+from ..pose_graph import optimize_pose_graph
+from .config import LoopClosingConfig
+from .verification import match_points_3d
+
+__all__ = ["Snapshot", "Correction", "take_snapshot", "essential_graph", "run_loop_correction", "run_global_ba",
+           "apply_correction", "fuse_points", "LoopCorrector"]
+
+
+@dataclass
+class Snapshot:
+    """The map as the correction sees it (copies; keyframe objects shared read-only).
+
+    ``ids (K,)`` sorted keyframe ids, ``T_w_c (K, 4, 4)``, ``parent (K,)`` ids, ``loop_edges`` pairs,
+    ``obs_kf, obs_pt, obs_kp`` the observation table, ``points`` alive point ids, ``xyz (P, 3)`` and
+    ``ref (P,)`` (reference keyframe id, -1 for none) of those points, ``keyframes`` by id.
+    """
+
+    ids: np.ndarray
+    T_w_c: np.ndarray
+    parent: np.ndarray
+    loop_edges: list[tuple[int, int]]
+    obs_kf: np.ndarray
+    obs_pt: np.ndarray
+    obs_kp: np.ndarray
+    points: np.ndarray
+    xyz: np.ndarray
+    ref: np.ndarray
+    descriptors: np.ndarray
+    keyframes: dict
+    scale_factor: float
+
+    def index(self) -> dict[int, int]:
+        return {int(k): i for i, k in enumerate(self.ids)}
+
+
+def _reference_keyframes(mp, pts: np.ndarray, obs_kf: np.ndarray, obs_pt: np.ndarray) -> np.ndarray:
+    """Reference keyframe of each point (its first keyframe; if culled, the first keyframe still
+    observing it; -1 when none)."""
+    ref = mp.first_kf[pts].copy()
+    missing = ~np.isin(ref, np.fromiter(mp.keyframes, np.int64))
+    if missing.any():
+        sel = np.isin(obs_pt, pts[missing])
+        o_kf, o_pt = obs_kf[sel], obs_pt[sel]
+        order = np.lexsort((o_kf, o_pt))
+        first = np.ones(len(order), bool)
+        first[1:] = o_pt[order][1:] != o_pt[order][:-1]
+        lut = dict(zip(o_pt[order][first].tolist(), o_kf[order][first].tolist()))
+        ref[missing] = [lut.get(int(p), -1) for p in pts[missing]]
+    return ref
+
+
+def take_snapshot(mp) -> Snapshot:
+    """Copy what the correction needs from the live map (frame loop)."""
+    ids = np.array(sorted(mp.keyframes), np.int64)
+    pts = mp.point_ids()
+    obs_kf, obs_pt, obs_kp = (a.copy() for a in mp.observations_of(pts))
+    loops = sorted({(min(k, o), max(k, o)) for k in ids.tolist() for o in mp.keyframes[k].loop_edges})
+    return Snapshot(
+        ids=ids,
+        T_w_c=np.stack([mp.keyframes[k].T_w_c for k in ids.tolist()]),
+        parent=np.array([mp.keyframes[k].parent_id for k in ids.tolist()], np.int64),
+        loop_edges=loops,
+        obs_kf=obs_kf, obs_pt=obs_pt, obs_kp=obs_kp,
+        points=pts, xyz=mp.xyz[pts].copy(), ref=_reference_keyframes(mp, pts, obs_kf, obs_pt),
+        descriptors=mp.descriptors[pts].copy(),
+        keyframes={int(k): mp.keyframes[int(k)] for k in ids},
+        scale_factor=float(mp.scale_factor),
+    )
+
+
+@dataclass
+class Correction:
+    """A computed correction, ready to apply: ``ids``, their poses before (``T_old``, the snapshot's)
+    and after (``T_new``); optionally points set outright (``point_ids``, ``xyz``), outlier
+    observations ``(kf, kp, pt)`` to drop, fusion triples ``(kf, kp, loop point)`` and the loop edge."""
+
+    ids: np.ndarray
+    T_old: np.ndarray
+    T_new: np.ndarray
+    point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    outliers: tuple = ()
+    fuse: list = field(default_factory=list)
+    loop_edge: tuple[int, int] | None = None
+    kind: str = "pose_graph"
+    stats: dict = field(default_factory=dict)
+
+
+def _covisibility_pairs(snap: Snapshot, min_weight: int) -> np.ndarray:
+    """``(E, 2)`` index pairs (into ``snap.ids``) of keyframes sharing at least ``min_weight`` points."""
+    if len(snap.obs_kf) == 0:
+        return np.zeros((0, 2), np.int64)
+    rows = np.searchsorted(snap.ids, snap.obs_kf)
+    cols = np.searchsorted(snap.points, snap.obs_pt)
+    A = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(snap.ids), len(snap.points)))
+    W = (A @ A.T).tocoo()
+    keep = (W.row < W.col) & (W.data >= min_weight)
+    return np.column_stack([W.row[keep], W.col[keep]]).astype(np.int64)
+
+
+def essential_graph(snap: Snapshot, T_init: np.ndarray, current_group: list[int], loop_group: list[int],
+                    config: LoopClosingConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges ``(E, 2)`` (indices into ``snap.ids``), measurements ``(E, 4, 4)`` and weights ``(E,)``:
+    new loop links current group x loop group measured with ``T_init`` (the corrected poses), then
+    the spanning tree, strong covisibility and earlier loops measured with the old poses."""
+    index = snap.index()
+    T_old = snap.T_w_c
+    edges, Z, w = [], [], []
+    seen: set[tuple[int, int]] = set()
+
+    def add(a: int, b: int, T: np.ndarray, weight: float) -> None:
+        key = (min(a, b), max(a, b))
+        if a != b and key not in seen:
+            seen.add(key)
+            edges.append((a, b))
+            Z.append(se3_inv(T[a]) @ T[b])
+            w.append(weight)
+
+    for q in current_group:
+        for l in loop_group:
+            if q in index and l in index:
+                add(index[l], index[q], T_init, config.loop_edge_weight)
+    for i, p in enumerate(snap.parent.tolist()):
+        if p in index:
+            add(index[p], i, T_old, 1.0)
+    for a, b in _covisibility_pairs(snap, config.pose_graph.min_covisibility_weight).tolist():
+        add(a, b, T_old, 1.0)
+    for a, b in snap.loop_edges:
+        if a in index and b in index:
+            add(index[a], index[b], T_old, 1.0)
+    if not edges:
+        return np.zeros((0, 2), np.int64), np.zeros((0, 4, 4)), np.zeros(0)
+    return np.asarray(edges, np.int64), np.stack(Z), np.asarray(w, float)
+
+
+def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarray, current_group: list[int],
+                        loop_group: list[int], loop_pids: np.ndarray, query_kp: np.ndarray,
+                        config: LoopClosingConfig) -> Correction:
+    """Steps 2 of the module docstring (worker thread): corrected guesses, fusion search, pose graph."""
+    index = snap.index()
+    T_init = snap.T_w_c.copy()
+    group = [k for k in current_group if k in index]
+    for k in group:
+        T_init[index[k]] = C @ snap.T_w_c[index[k]]
+    fuse = [(int(query_id), np.asarray(query_kp, np.int64), np.asarray(loop_pids, np.int64))]
+    if config.fuse_points:
+        # the loop group's points searched (in 3D) in every corrected keyframe of the current group
+        in_group = np.isin(snap.obs_kf, loop_group)
+        lp = np.unique(snap.obs_pt[in_group])
+        li = np.searchsorted(snap.points, lp)
+        for k in group:  # the current keyframe's neighbours (a few)
+            if k == query_id:
+                continue
+            kf = snap.keyframes[k]
+            X_k = transform_points(se3_inv(T_init[index[k]]), snap.xyz[li])
+            pts_k = np.where(np.asarray(kf.static, bool)[:, None], kf.points_c, np.nan)
+            ip, ik = match_points_3d(X_k, snap.descriptors[li], pts_k, kf.descriptors, config.inlier_abs, config.inlier_rel)
+            fuse.append((int(k), ik, lp[ip]))
+    edges, Z, w = essential_graph(snap, T_init, group, loop_group, config)
+    if len(edges) == 0:
+        T_new = T_init
+    else:
+        T_new = optimize_pose_graph(T_init, edges, Z, fixed=[index[loop_id]], weights=w, config=config.pose_graph).poses
+    return Correction(snap.ids, snap.T_w_c, T_new, fuse=fuse, loop_edge=(int(loop_id), int(query_id)),
+                      stats={"edges": int(len(edges)), "keyframes": int(len(snap.ids))})
+
+
+def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf: float, iterations: int) -> Correction:
+    """Bundle adjustment of every keyframe and point of the snapshot (ORB-SLAM2
+    ``RunGlobalBundleAdjustment``), the keyframes ``fixed_ids`` (and the map origin) held."""
+    alive_obs = np.isin(snap.obs_kf, snap.ids)
+    o_kf, o_pt, o_kp = snap.obs_kf[alive_obs], snap.obs_pt[alive_obs], snap.obs_kp[alive_obs]
+    if len(o_kf) == 0:
+        return Correction(snap.ids, snap.T_w_c, snap.T_w_c.copy(), kind="global_ba")
+    kfs = {int(k): snap.keyframes[int(k)] for k in np.unique(o_kf)}
+    fixed = ({int(f) for f in fixed_ids} | {int(snap.ids[0])}) & set(kfs)
+    if not fixed:
+        fixed = {min(kfs)}
+    index = snap.index()
+    upts = np.unique(o_pt)
+    obs = gather_observations(kfs, o_kf, o_kp, bf, snap.scale_factor)
+    res = local_bundle_adjustment({k: se3_inv(snap.T_w_c[index[k]]) for k in kfs}, fixed,
+                                  snap.xyz[np.searchsorted(snap.points, upts)], o_kf, np.searchsorted(upts, o_pt), obs,
+                                  camera, bf, iterations)
+    T_new = snap.T_w_c.copy()
+    for k in kfs:
+        if k not in fixed:
+            T_new[index[k]] = se3_inv(res.T_c_w[k])
+    out = res.outlier
+    return Correction(snap.ids, snap.T_w_c, T_new, point_ids=upts, xyz=res.points,
+                      outliers=(o_kf[out], o_kp[out], o_pt[out]), kind="global_ba",
+                      stats={"gba_points": int(len(upts)), "gba_keyframes": len(kfs), "gba_outliers": int(out.sum()),
+                             "gba_cost_before": res.cost_before, "gba_cost_after": res.cost_after})
+
+
+def fuse_points(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> int:
+    """Make keypoints ``kp_idx`` of ``kf`` observe the loop points ``loop_pids``; duplicates merge
+    (ORB-SLAM2 ``SearchAndFuse``). Returns the number of merged points."""
+    keep = mp.alive[loop_pids]
+    loop_pids, kp_idx = loop_pids[keep], kp_idx[keep]
+    cur = kf.map_point_ids[kp_idx]
+    free = cur < 0
+    add_kp, add_pt = kp_idx[free], loop_pids[free]
+    new_obs = ~np.isin(add_pt, kf.map_point_ids)
+    kf.map_point_ids[add_kp[new_obs]] = add_pt[new_obs]
+    old, new = cur[~free], loop_pids[~free]
+    diff = (old != new) & ~np.isin(old, loop_pids) & mp.alive[np.maximum(old, 0)]
+    old, new = old[diff], new[diff]
+    if len(old):
+        _, first = np.unique(old, return_index=True)
+        old, new = old[first], new[first]
+        replace_points(mp, old, new)
+    mp.invalidate()
+    return int(len(old))
+
+
+def _keyframe_deltas(mp, corr: Correction) -> dict[int, np.ndarray]:
+    """Correction ``D_k`` of every keyframe of the map: its own for snapshot keyframes, its nearest
+    snapshot ancestor's (spanning tree) for keyframes made since, identity without one."""
+    own = {int(k): corr.T_new[i] @ se3_inv(corr.T_old[i]) for i, k in enumerate(corr.ids.tolist())}
+    out: dict[int, np.ndarray] = {}
+    for k in sorted(mp.keyframes):  # parents have smaller ids: one pass
+        if k in own:
+            out[k] = own[k]
+        else:
+            p = mp.keyframes[k].parent_id
+            out[k] = out.get(p, own.get(p, np.eye(4)))
+    return out
+
+
+def apply_correction(mp, corr: Correction) -> list[int]:
+    """Step 3 of the module docstring (frame loop). Returns the ids of the keyframes moved."""
+    D = _keyframe_deltas(mp, corr)
+    pts = mp.point_ids()
+    obs_kf, obs_pt, _ = mp.observations_of(pts)
+    ref = _reference_keyframes(mp, pts, obs_kf, obs_pt)
+    for k, Dk in D.items():
+        kf = mp.keyframes[k]
+        kf.T_w_c = Dk @ kf.T_w_c
+    # points move rigidly with their reference keyframe (grouped by reference: one transform each);
+    # their viewing direction turns with it and their distance to it is kept, so the scale range
+    # (min/max distance) stays valid without re-gathering every observation (ORB-SLAM2 recomputes
+    # them; local mapping does it here for the points it touches next)
+    X = mp.xyz[pts]
+    N = mp.normal[pts]
+    for r in np.unique(ref):  # loop over keyframes
+        if r < 0 or int(r) not in D:
+            continue
+        sel = ref == r
+        X[sel] = transform_points(D[int(r)], X[sel])
+        N[sel] = N[sel] @ D[int(r)][:3, :3].T
+    mp.xyz[pts] = X
+    mp.normal[pts] = N
+    if len(corr.point_ids):  # global BA: its points take its positions (the alive ones)
+        ok = mp.alive[corr.point_ids]
+        mp.xyz[corr.point_ids[ok]] = corr.xyz[ok]
+    if corr.outliers:
+        o_kf, o_kp, o_pt = corr.outliers
+        for k in np.unique(o_kf):  # loop over keyframes
+            kf = mp.keyframes.get(int(k))
+            if kf is None:
+                continue
+            sel = o_kf == k
+            same = kf.map_point_ids[o_kp[sel]] == o_pt[sel]
+            kf.map_point_ids[o_kp[sel][same]] = -1
+    n_fused = 0
+    for k, kp, lp in corr.fuse:
+        kf = mp.keyframes.get(int(k))
+        if kf is not None and len(kp):
+            n_fused += fuse_points(kf, mp, lp, kp)
+    if corr.loop_edge is not None:
+        a, b = corr.loop_edge
+        if a in mp.keyframes and b in mp.keyframes:
+            mp.keyframes[a].loop_edges.add(b)
+            mp.keyframes[b].loop_edges.add(a)
+    mp.invalidate()  # (global BA moves points by millimetres: their viewing geometry is kept)
+    corr.stats["fused"] = n_fused
+    return sorted(D)
+
+
+class LoopCorrector:
+    """Runs correction jobs one at a time, in a worker thread (``background``) or at once.
+
+    :meth:`submit` takes a function computing a :class:`Correction` from copies only; :meth:`poll`
+    (frame loop) applies the finished ones to the map and returns them with their apply time.
+    """
+
+    def __init__(self, background: bool) -> None:
+        self.background = bool(background)
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: list[tuple[Future, object]] = []
+
+    @property
+    def busy(self) -> bool:
+        return bool(self._pending)
+
+    def submit(self, fn, tag) -> None:
+        """Start ``fn() -> Correction``; ``tag`` comes back with the result."""
+        if self.background:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="loop-correction")
+            self._pending.append((self._pool.submit(fn), tag))
+        else:
+            f: Future = Future()
+            try:
+                f.set_result(fn())
+            except Exception as exc:  # reported by poll, as the worker's would be
+                f.set_exception(exc)
+            self._pending.append((f, tag))
+
+    def poll(self, wait: bool = False) -> list[tuple[Correction, object]]:
+        """Finished jobs ``(correction, tag)`` in submission order (all of them when ``wait``); a job
+        that raised re-raises here (the caller reports it)."""
+        done = []
+        while self._pending and (wait or self._pending[0][0].done()):
+            fut, tag = self._pending.pop(0)
+            done.append((fut.result(), tag))
+        return done
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None

@@ -1,0 +1,74 @@
+"""Detection of frame t run beside ORB extraction (``tracking.overlap_detection``): the detector
+runs in the worker thread, and the results are the same as run one after the other."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dynslam_lab.config import Config
+from dynslam_lab.detection.detections import Detections
+from dynslam_lab.dynamic.screening import build_screener
+from dynslam_lab.slam.system import System
+from tests.slam import scene
+
+
+class MovingBoxDetector:
+    """A 'person' box that slides with the frame index; records the thread it ran in."""
+
+    def __init__(self) -> None:
+        self.config = Config().detection
+        self.threads: set[str] = set()
+
+    def detect(self, frame) -> Detections:
+        self.threads.add(threading.current_thread().name)
+        x = 40.0 + 8.0 * frame.index
+        return Detections(np.array([[x, 100.0, x + 160.0, 400.0]]), np.array([0.9]), np.array([0]), frame.shape)
+
+
+def _run(frames, overlap: bool):
+    cfg = Config()
+    cfg = replace(cfg, tracking=replace(cfg.tracking, overlap_detection=overlap))
+    det = MovingBoxDetector()
+    system = System(frames[0].camera, cfg, detector=det, screener=build_screener("semantic", cfg.screening))
+    results = [system.process(f) for f in frames]
+    return system, det, results
+
+
+def test_overlap_gives_the_same_results_and_runs_in_the_worker():
+    frames = scene.frames(40, "xyz")[:10]
+    sys_a, det_a, res_a = _run(frames, overlap=True)
+    sys_b, det_b, res_b = _run(frames, overlap=False)
+    assert det_a.threads and all(t.startswith("dynslam-detect") for t in det_a.threads)
+    assert det_b.threads == {threading.current_thread().name}
+    for a, b in zip(res_a, res_b):
+        assert a.state == b.state and a.is_keyframe == b.is_keyframe
+        np.testing.assert_array_equal(a.dynamic, b.dynamic)
+        np.testing.assert_array_equal(a.T_w_c, b.T_w_c)
+        assert a.timings_ms["detect"] >= 0 and a.timings_ms["orb"] > 0
+    assert sum(int(r.dynamic.sum()) for r in res_a) > 100  # the box did mark keypoints dynamic
+    ta, tb = sys_a.trajectory(), sys_b.trajectory()
+    np.testing.assert_array_equal(ta.poses, tb.poses)
+    gt = np.stack([f.T_w_c_gt for f in frames])
+    assert np.abs(ta.poses[:, :3, 3] - gt[:, :3, 3]).max() < 0.01
+
+
+def test_a_failing_detector_fails_that_frame_only():
+    frames = scene.frames(40, "xyz")[:4]
+
+    class Flaky(MovingBoxDetector):
+        def detect(self, frame):
+            if frame.index == 2:
+                raise RuntimeError("detector crashed on frame 2")
+            return super().detect(frame)
+
+    cfg = Config()
+    system = System(frames[0].camera, cfg, detector=Flaky(), screener=build_screener("semantic", cfg.screening))
+    system.process(frames[0])
+    system.process(frames[1])
+    with pytest.raises(RuntimeError, match="frame 2"):
+        system.process(frames[2])
+    assert system.process(frames[3]).tracked
