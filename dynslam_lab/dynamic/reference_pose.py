@@ -168,21 +168,13 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
             isg = inv_sigma[ok]
             r = (uv[ok] - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
             w = isg * isg / (1.0 + (np.einsum("ij,ij->i", r, r) / (s * s)))
-            # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point
-            J = np.zeros((len(z), 2, 6))
-            J[:, 0, 0] = -fx * x * y * iz * iz
-            J[:, 0, 1] = fx * (1 + x * x * iz * iz)
-            J[:, 0, 2] = -fx * y * iz
-            J[:, 0, 3] = fx * iz
-            J[:, 0, 5] = -fx * x * iz * iz
-            J[:, 1, 0] = -fy * (1 + y * y * iz * iz)
-            J[:, 1, 1] = fy * x * y * iz * iz
-            J[:, 1, 2] = fy * x * iz
-            J[:, 1, 4] = fy * iz
-            J[:, 1, 5] = -fy * y * iz * iz
-            Jw = J * w[:, None, None]
-            H = np.einsum("nki,nkj->ij", Jw, J)
-            g = np.einsum("nki,nk->i", Jw, r / isg[:, None])
+            # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point, one (M, 6) block per row
+            xz, yz = x * iz, y * iz
+            Ju = np.column_stack([-fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * iz, np.zeros_like(iz), -fx * xz * iz])
+            Jv = np.column_stack([-fy * (1 + yz * yz), fy * xz * yz, fy * xz, np.zeros_like(iz), fy * iz, -fy * yz * iz])
+            H = Ju.T @ (Ju * w[:, None]) + Jv.T @ (Jv * w[:, None])
+            rw = r / isg[:, None] * w[:, None]  # residuals in px, weighted
+            g = Ju.T @ rw[:, 0] + Jv.T @ rw[:, 1]
             try:
                 delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:

@@ -77,27 +77,31 @@ def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float, join_conv
     """
     z = np.asarray(depth, np.float32)
     h, w = z.shape
-    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
-    P = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=-1)
-    dx = np.gradient(P, axis=1)  # central differences, one-sided at the border
-    dy = np.gradient(P, axis=0)
-    n = np.cross(dx, dy)
-    n *= -np.sign(np.einsum("...k,...k->...", n, P))[..., None]  # towards the camera
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
-    n = np.where(norm > 0, n / np.maximum(norm, 1e-12), 0.0)  # zero where undefined: never a crease
+    X = ((np.arange(w, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :] * z
+    Y = ((np.arange(h, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None] * z
+    P = (X, Y, z)  # one (h, w) plane per coordinate: the vector arithmetic below stays on contiguous planes
+    dx = [np.gradient(a, axis=1) for a in P]  # central differences, one-sided at the border
+    dy = [np.gradient(a, axis=0) for a in P]
+    n = [dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]]
+    flip = np.where(n[0] * X + n[1] * Y + n[2] * z > 0, np.float32(-1), np.float32(1))  # towards the camera
+    norm = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+    scale = np.where(norm > 0, flip / np.maximum(norm, np.float32(1e-12)), np.float32(0))  # 0 where undefined
+    n = [a * scale for a in n]
+    defined = norm > 0
     c = np.float32(np.cos(np.radians(max_angle_deg)))
 
-    def joined(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-        ok = np.einsum("...k,...k->...", a, b) >= c
-        ok |= ~(np.any(a != 0, axis=-1) & np.any(b != 0, axis=-1))
+    def joined(sa, sb) -> np.ndarray:
+        na, nb = [a[sa] for a in n], [a[sb] for a in n]
+        ok = (na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]) >= c
+        ok |= ~(defined[sa] & defined[sb])  # never a crease where a normal is undefined
         if join_convex:
-            ok |= np.einsum("...k,...k->...", a - b, pa - pb) > 0
+            ok |= sum((na[k] - nb[k]) * (P[k][sa] - P[k][sb]) for k in range(3)) > 0
         return ok
 
     horiz = np.ones((h, w - 1), bool)
-    horiz[:, 1:-1] = joined(n[:, :-3], n[:, 3:], P[:, :-3], P[:, 3:])
+    horiz[:, 1:-1] = joined((slice(None), slice(0, w - 3)), (slice(None), slice(3, w)))
     vert = np.ones((h - 1, w), bool)
-    vert[1:-1] = joined(n[:-3], n[3:], P[:-3], P[3:])
+    vert[1:-1] = joined((slice(0, h - 3), slice(None)), (slice(3, h), slice(None)))
     return horiz, vert
 
 

@@ -419,8 +419,10 @@ def multiframe_stage(w: FrameWork) -> None:
     agree[keep] = g.agreements
     occluded = np.full(h * wd, len(refs), np.int64)
     occluded[keep] = g.occlusions
+    # the backward test against the older frames only (what vanished in one or two frames shows in them too)
+    older = [f for f in refs if w.frame.index - f.index >= 4] or refs[-1:]
     pts_refs = [(f.T_w_c, _cached(f, "grid_points", lambda f=f: grid_points(_past_small_depth(f, cfg.factor), cam)[0]))
-                for f in refs]
+                for f in older]
     van = vanished_test(pts_refs, T_w_c, eroded_depth(small, 1), cam, cfg).reshape(-1)
     need = min(w.config.regions.static_min_agree, len(refs))  # one earlier frame: its agreement must do
     static = (viol == 0) & (van == 0) & (agree >= need) & (agree >= occluded)
