@@ -55,7 +55,7 @@ import cv2
 import numpy as np
 
 from ..features.matching import search_by_projection
-from ..geometry.se3 import make_pose, se3_inv, so3_exp, transform_points
+from ..geometry.se3 import se3_inv, transform_points
 
 __all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "map_reference_pose"]
 
@@ -64,7 +64,7 @@ __all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_p
 class ReferencePoseConfig:
     """Parameters of the reference pose (DynaSLAM's low-cost tracking, Bescos et al. 2018; values ours)."""
 
-    search_radius_px: float = 12.0  # map points matched within this distance of their predicted pixel (px); ORB-SLAM2 motion model 15, ours 12
+    search_radius_px: float = 8.0  # map points matched within this distance of their predicted pixel (px); ORB-SLAM2 motion model 15, ours 8 (beyond gate_px a match only reports a moved point)
     max_hamming: int = 80  # largest Hamming distance of a map match (bits); ORB-SLAM2 TH_HIGH 100, ours 80 (stricter)
     ratio: float = 0.8  # best / second-best Hamming distance among candidates of one map point; ORB-SLAM2 0.8
     gate_px: float = 6.0  # matches farther than this from the prediction stay out of the refinement (px); ours
@@ -179,7 +179,9 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
                 delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:
                 return T
-            dT = make_pose(so3_exp(delta[:3]), delta[3:])
+            dT = np.eye(4)
+            dT[:3, :3] = cv2.Rodrigues(delta[:3])[0]  # exp of the rotation part (OpenCV: no scipy call per step)
+            dT[:3, 3] = delta[3:]
             T = dT @ T
             if np.linalg.norm(delta) < 1e-8:
                 break

@@ -293,7 +293,7 @@ def _near_mask(dets, sem: SemanticResult, use_masks: bool, margin: int) -> np.nd
     """``(H, W)`` bool: within ``margin`` px of an a-priori dynamic detection (mask, else box)."""
     sel = np.flatnonzero(sem.dynamic_detections)
     union = (dets.masks[sel] if dets.masks is not None and use_masks else dets.region_masks()[sel]).any(axis=0)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+    k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * margin + 1, 2 * margin + 1))  # a square: separable, fast
     return cv2.dilate(union.astype(np.uint8), k).astype(bool)
 
 
