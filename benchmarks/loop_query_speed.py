@@ -19,7 +19,9 @@ no ``s_min``, so all groups of keyframes sharing enough words are accumulated.
 **The loop stage inside a run** (``--stage``): what ``LoopCloser.on_keyframe`` costs the frame loop
 per keyframe as the map grows to 1,000 keyframes: static BoW vector, database prune and query,
 covisibility of the query and of the candidates, consistency, and the verification of every
-consistent candidate (the correction itself runs in the worker thread and is not in this time).
+consistent candidate only with ``--sync`` (``background=False``); by default verification and the
+correction run in the loop closer's worker thread and are not in this time (the frame loop freezes a
+view of the map for the worker: that is).
 The map is real: the system runs on the synthetic ``loop`` sequence (300 frames, ~55 keyframes);
 its keyframes and map points are then replayed as copies, each copy displaced by 20 m and turned, so
 that every copy is the same real room seen again (the hard case: every query finds many candidates
@@ -118,7 +120,7 @@ def bench(n_kf: int, sources: list[np.ndarray], rng: np.random.Generator) -> dic
     }
 
 
-def stage_in_run(n_keyframes: int) -> None:
+def stage_in_run(n_keyframes: int, background: bool = True) -> None:
     """The loop stage per keyframe while a real map (tiled copies of a run's keyframes) grows."""
     import dataclasses
 
@@ -140,7 +142,7 @@ def stage_in_run(n_keyframes: int) -> None:
     kfs = [src.keyframes[k] for k in sorted(src.keyframes)]
     print(f"source run: {len(kfs)} keyframes, {len(src.point_ids())} map points (synthetic loop, 300 frames)")
     cfg = Config().loop_closing
-    closer = LoopCloser(dataclasses.replace(cfg, background=False), seq.camera, Config().tracking.bf)
+    closer = LoopCloser(dataclasses.replace(cfg, background=background), seq.camera, Config().tracking.bf)
     mp = Map(src.scale_factor, src.n_levels)
     rows, copy = [], 0
     with blas_single_thread():
@@ -166,6 +168,9 @@ def stage_in_run(n_keyframes: int) -> None:
                 closer.on_keyframe(new, mp)
                 rows.append((len(mp.keyframes), closer.stage_ms[-1][1]))
             copy += 1
+    closer.wait(mp)  # the worker's last verifications
+    closer.close()
+    print(f"verification {'in the worker thread (config default)' if background else 'in the frame loop (--sync)'}")
     n = np.array([r[0] for r in rows])
     ms = np.array([r[1] for r in rows])
     print(f"{'keyframes':>12} {'median ms':>10} {'mean ms':>9} {'p90 ms':>8} {'max ms':>8}  target: <= 10 ms per keyframe")
@@ -178,6 +183,8 @@ def stage_in_run(n_keyframes: int) -> None:
     for _, _, r, _ in closer.rejected:
         reasons[r] = reasons.get(r, 0) + 1
     print(f"candidates verified and rejected: {len(closer.rejected)} {reasons}; loops accepted: {len(closer.loops)}")
+    for r in closer.loops:  # (none expected: every copy is 20 m away, the drift check refuses it)
+        print(f"loop {r.query_kf_id}->{r.loop_kf_id}: " + " ".join(f"{k} {v:.1f} ms" for k, v in r.timings_ms.items()))
 
 
 def main() -> None:
@@ -187,9 +194,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stage", action="store_true", help="time the loop stage inside a growing real map instead")
     ap.add_argument("--stage-keyframes", type=int, default=1000)
+    ap.add_argument("--sync", action="store_true", help="with --stage: verify in the frame loop (background=False)")
     args = ap.parse_args()
     if args.stage:
-        stage_in_run(args.stage_keyframes)
+        stage_in_run(args.stage_keyframes, background=not args.sync)
         return
     rng = np.random.default_rng(args.seed)
     sources, src = source_descriptors(args.features)

@@ -57,7 +57,7 @@ class Config:
     local_mapping: LocalMappingConfig = field(default_factory=LocalMappingConfig)  # local mapping (slam/local_mapping.py)
     detection: DetectionConfig = field(default_factory=DetectionConfig)  # detectors, NMS, motion priors (detection/config.py)
     screening: ScreeningConfig = field(default_factory=ScreeningConfig)  # dynamic-feature screening (dynamic/config.py)
-    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)  # loop closing (slam/loop_closing.py)
+    loop_closing: LoopClosingConfig = field(default_factory=LoopClosingConfig)  # loop closing (slam/loop_closing/)
     dense_map: DenseMapConfig = field(default_factory=DenseMapConfig)  # dense static map (mapping/dense.py)
 
 

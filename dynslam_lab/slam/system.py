@@ -301,10 +301,7 @@ class System:
                 t["loop"] += 1e3 * (time.perf_counter() - t0)
                 if loop is not None:
                     res.loop = loop
-                    self.loop_results.append(loop)
-                    ids = [int(i) for i in np.asarray(getattr(loop, "keyframe_ids", ()), dtype=np.int64).reshape(-1)]
-                    if len(ids) >= 2:
-                        self.loop_edges.append((ids[0], ids[1]))
+                    self._record_loop(loop)
                     if getattr(loop, "applied", True) and T_ref_c is not None and kf.id in self.map.keyframes:
                         # Corrected at once (no worker): re-anchor the current frame on its keyframe.
                         sf.T_w_c = self.map.keyframes[kf.id].T_w_c @ T_ref_c
@@ -324,6 +321,12 @@ class System:
         res.timings_ms = t
         return res
 
+    def _record_loop(self, loop) -> None:
+        self.loop_results.append(loop)
+        ids = [int(i) for i in np.asarray(getattr(loop, "keyframe_ids", ()), dtype=np.int64).reshape(-1)]
+        if len(ids) >= 2:
+            self.loop_edges.append((ids[0], ids[1]))
+
     def _apply_loop_corrections(self, t: dict, errors: list, wait: bool = False) -> None:
         """Apply the loop corrections the loop closer's worker has finished (all of them when ``wait``),
         between two frames, and move the last tracked frame with its reference keyframe (ORB-SLAM2
@@ -336,6 +339,8 @@ class System:
         except Exception as exc:  # a failed correction must not stop tracking
             applied = []
             errors.append(f"loop correction failed: {type(exc).__name__}: {exc}")
+        for loop in getattr(self.loop_closer, "loops", [])[len(self.loop_results):]:
+            self._record_loop(loop)  # accepted by the worker's verification (background)
         if applied:
             self.map.invalidate()
             last = self.tracker.last

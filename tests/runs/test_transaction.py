@@ -182,14 +182,19 @@ def test_two_concurrent_runs_and_a_real_sigint(seqdir, tmp_path, capsys):
     assert first.returncode == 0, first_err
     assert verify_run(out) == [] and json.loads((out / "summary.json").read_text())["processed"] == 24
 
+    # A sequence long enough (ca. 200 frames) that the signal lands mid-run on a fast machine too.
+    long_seq = write_sequence(tmp_path / "seq_long", n=40, back_and_forth=5)
+    n_long = len((long_seq / "rgb.txt").read_text().splitlines()) - 1
+    cmd[cmd.index(str(seq))] = str(long_seq)
     out2 = tmp_path / "sigint"
     proc = subprocess.Popen(cmd + ["--out", str(out2)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for(out2 / "summary.json", proc)
-    time.sleep(float(np.random.default_rng(5).uniform(0.0, 1.0)))
+    time.sleep(float(np.random.default_rng(5).uniform(0.0, 0.5)))
+    assert proc.poll() is None, "the run finished before the signal: make the sequence longer"
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
-    assert "interrupted after" in err and "of 24 frames" in err and "Traceback" not in err
+    assert "interrupted after" in err and f"of {n_long} frames" in err and "Traceback" not in err
     s = json.loads((out2 / "summary.json").read_text())
-    assert verify_run(out2) == [] and s["state"] == "interrupted" and 1 <= s["processed"] < 24
+    assert verify_run(out2) == [] and s["state"] == "interrupted" and 1 <= s["processed"] < n_long
     shutil.rmtree(out2)

@@ -186,8 +186,8 @@ def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, see
 
     Map points are reused for landmarks seen in the last 3 keyframes; a landmark seen again
     after longer gets a new (duplicate) point, like tracking without loop closure.
-    With a background closer and ``apply_in_loop``, a started correction is waited for and applied
-    right after the keyframe (as the synchronous closer does).
+    With a background closer and ``apply_in_loop``, the worker's verification and the correction it
+    starts are waited for and applied right after the keyframe (as the synchronous closer does).
     Returns (closer, map, T_gt (K,4,4), T_est_before (K,4,4), results).
     """
     rng = np.random.default_rng(seed)
@@ -234,9 +234,11 @@ def run_loop_scene(total_angle_deg: float, n_kf: int, dynamic: bool = False, see
         for lm in vis[reuse].tolist():
             lm_point[lm] = (lm_point[lm][0], k)
         mp.update_geometry(mp.point_ids())
+        n_loops = len(closer.loops)
         r = closer.on_keyframe(kf, mp)
         if apply_in_loop and closer.busy:
-            closer.wait(mp)
+            closer.wait(mp)  # a background closer verifies, then corrects: the loop comes out of the worker
+            r = closer.loops[-1] if len(closer.loops) > n_loops else None
         if r is not None:
             results.append(r)
             # after a loop the tracker would continue from the corrected pose: so does the generator

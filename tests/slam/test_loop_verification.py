@@ -124,3 +124,37 @@ def test_precision_recall_by_hand():
     k = {round(a, 3): (p, r) for a, p, r in zip(pr.alpha, pr.precision, pr.recall)}
     assert k[0.9] == (1.0, 0.5) and k[0.7] == (0.5, 0.5) and k[0.5] == pytest.approx((2 / 3, 1.0))
     assert pr.recall_at_full_precision == 0.5
+
+
+# --------------------------------------------------------------------------- verification off the frame loop
+def test_verification_on_a_frozen_view_equals_the_live_map_and_ignores_later_changes():
+    """The worker verifies on a view frozen when the candidates are handed over: the same check as on
+    the live map, and unchanged when the frame loop then moves poses and points and rewrites observations."""
+    from dynslam_lab.slam.loop_closing.frozen import freeze_for_verification
+    from dynslam_lab.slam.loop_closing.verification import verify_candidate
+
+    cfg = LoopClosingConfig(global_ba=False, background=False)
+    closer, mp, _, _, res = run_loop_scene(400.0, 44, config=cfg)
+    assert res
+    q, c = res[0].query_kf_id, res[0].loop_kf_id
+    kf = mp.keyframes[q]
+    cov = {q: mp.covisibility(q), c: mp.covisibility(c)}
+    view = freeze_for_verification(mp, q, [c], cov, cfg.loop_group_size)
+    live = verify_candidate(kf, mp, c, cfg, closer.camera, closer.bf, np.random.default_rng(3))
+    frozen = verify_candidate(view.keyframes[q], view, c, cfg, closer.camera, closer.bf, np.random.default_rng(3))
+    assert live.accepted and frozen.accepted
+    np.testing.assert_array_equal(frozen.T_q_c, live.T_q_c)
+    np.testing.assert_array_equal(frozen.ip, live.ip)
+    # the frame loop goes on: poses move, points move, observations of the loop group are dropped
+    shift = make_pose(so3_exp([0.0, 0.3, 0.0]), [1.0, 0.0, 0.0])
+    for k in list(mp.keyframes):
+        mp.keyframes[k].T_w_c = shift @ mp.keyframes[k].T_w_c
+        mp.keyframes[k].map_point_ids[::2] = -1
+    mp.xyz[mp.point_ids()] += 0.5
+    mp.invalidate()
+    again = verify_candidate(view.keyframes[q], view, c, cfg, closer.camera, closer.bf, np.random.default_rng(3))
+    np.testing.assert_array_equal(again.T_q_c, live.T_q_c)
+    np.testing.assert_array_equal(again.correction, live.correction)
+    # a point outside the frozen loop groups is never read silently
+    with pytest.raises(KeyError):
+        view.xyz[np.array([mp.n_points_total + 10])]

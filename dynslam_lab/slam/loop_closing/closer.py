@@ -16,9 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...camera import PinholeCamera
+from ...geometry.se3 import se3_inv
 from ..keyframe_database import KeyframeDatabase, LoopCandidate, static_bow
 from ..vocabulary import BowVector, Vocabulary, default_vocabulary
 from .config import LoopClosingConfig
+from .frozen import freeze_for_verification
 from .correction import LoopCorrector, apply_correction, run_global_ba, run_loop_correction, take_snapshot
 from .detection import LoopDetector
 from .verification import CandidateCheck, verify_candidate
@@ -65,6 +67,15 @@ class LoopResult:
         return (min(self.loop_kf_id, self.query_kf_id), max(self.loop_kf_id, self.query_kf_id))
 
 
+def _timed_verification(fn, job: tuple):
+    """``fn(*job)`` (a verification, in the worker) with its duration (ms) appended to its output."""
+    def run():
+        t0 = time.perf_counter()
+        out = fn(*job)
+        return (*out, 1e3 * (time.perf_counter() - t0))
+    return run
+
+
 def _timed(fn, key: str, result: LoopResult):
     """``fn`` wrapped to record its duration in ``result.timings_ms[key]`` (runs in the worker)."""
     def run():
@@ -108,6 +119,7 @@ class LoopCloser:
         self.rejected: list[tuple[int, int, str, dict]] = []
         self.errors: list[str] = []
         self._last_loop_kf = -1
+        self._epoch = 0  # accepted loops so far: verifications begun before the last one are dropped
         self._rng = np.random.default_rng(self.config.seed)
 
     @property
@@ -131,11 +143,14 @@ class LoopCloser:
 
     # ------------------------------------------------------------------ frame loop
     def on_keyframe(self, keyframe, map) -> LoopResult | None:  # noqa: A002 - the contract's name
-        """Detect and verify a loop for a new keyframe (already inserted in ``map``); start its correction.
+        """Detect loop candidates for a new keyframe (already inserted in ``map``) and hand them to verification.
 
-        The keyframe is added to the database whatever the outcome. No loop is searched while a
-        correction is pending. With ``config.background`` False the correction is applied before
-        returning; else :meth:`poll` applies it later.
+        The frame loop only queries the database and checks consistency; the consistent candidates
+        are verified on a frozen view of the map (:func:`.frozen.freeze_for_verification`) by the
+        worker, and :meth:`poll` starts the correction of an accepted one. The keyframe is added to
+        the database whatever the outcome. No loop is searched while a correction is pending.
+        With ``config.background`` False verification and correction run at once and the loop
+        accepted for this keyframe (applied) is returned; else None (:meth:`poll` returns it later).
         """
         cfg = self.config
         if not cfg.enabled:
@@ -143,29 +158,58 @@ class LoopCloser:
         t0 = time.perf_counter()
         bow = self.keyframe_bow(keyframe)
         self.database.prune(map.keyframes)
-        result = None
         far_enough = keyframe.id >= max(cfg.min_keyframes_between, self._last_loop_kf + cfg.min_keyframes_between)
-        if not self.busy and far_enough and len(map.keyframes) > cfg.min_keyframes_between and len(bow):
+        n_loops = len(self.loops)
+        if not self._correcting and far_enough and len(map.keyframes) > cfg.min_keyframes_between and len(bow):
             accepted = self.detector.detect(keyframe, map, bow)
             q_ms = 1e3 * (time.perf_counter() - t0)
             self.query_ms.append((int(keyframe.id), q_ms))
-            for cand_id in accepted:
-                t1 = time.perf_counter()
-                check = verify_candidate(keyframe, map, cand_id, cfg, self.camera, self.bf, self._rng)
-                if not check.accepted:
-                    self.rejected.append((int(keyframe.id), int(cand_id), check.reason, check.stats))
-                    continue
-                result = self._start(keyframe, map, cand_id, check, q_ms, 1e3 * (time.perf_counter() - t1))
-                break
+            if accepted:
+                view = freeze_for_verification(map, keyframe.id, accepted, self.detector.last_covisibility,
+                                               cfg.loop_group_size)
+                job = (view.keyframes[keyframe.id], view, list(accepted), self._epoch)
+                self.corrector.submit(_timed_verification(self._verify, job), ("verify", (job, q_ms)))
         if keyframe.id not in self.database:
             self.database.add(keyframe.id, bow)
-        if result is not None:
-            self.loops.append(result)
-            self._last_loop_kf = keyframe.id
-            self.detector.reset()
-            if not cfg.background:
-                self.poll(map)
+        if not cfg.background and self.busy:
+            self.poll(map)
         self.stage_ms.append((int(keyframe.id), 1e3 * (time.perf_counter() - t0)))
+        return self.loops[-1] if len(self.loops) > n_loops else None
+
+    @property
+    def _correcting(self) -> bool:
+        """A pose-graph or global-BA correction is pending (verification jobs do not count)."""
+        return any(kind != "verify" for kind, _ in self.corrector.tags())
+
+    def _verify(self, query, view, candidates: list[int], epoch: int) -> tuple[int, CandidateCheck | None, list, tuple]:
+        """Worker: verify the candidates in order on the frozen view; the first accepted wins.
+        Returns ``(candidate id or -1, its check, [(candidate, reason, stats) of the rejected],
+        (frozen query pose, frozen candidate pose))``."""
+        rejected = []
+        for cand_id in candidates:
+            check = verify_candidate(query, view, cand_id, self.config, self.camera, self.bf, self._rng)
+            if check.accepted:
+                return int(cand_id), check, rejected, (query._T_w_c, view.keyframes[cand_id]._T_w_c)
+            rejected.append((int(cand_id), check.reason, check.stats))
+        return -1, None, rejected, ()
+
+    def _accept(self, mp, query_id: int, cand_id: int, check: CandidateCheck, frozen: tuple, q_ms: float,
+                v_ms: float) -> LoopResult | None:
+        """Frame loop: start the correction of a verified loop, or None when one of its two keyframes
+        was culled since it was verified."""
+        kf, cand = mp.keyframes.get(query_id), mp.keyframes.get(cand_id)
+        if kf is None or cand is None:
+            self.rejected.append((int(query_id), int(cand_id), "culled", dict(check.stats)))
+            return None
+        frozen_q, frozen_c = frozen
+        if not (kf._T_w_c is frozen_q and cand._T_w_c is frozen_c):
+            # local BA moved a pose since verification: the same relative pose on the current ones
+            check.correction = cand.T_w_c @ se3_inv(check.T_q_c) @ kf.T_c_w
+        result = self._start(kf, mp, cand_id, check, q_ms, v_ms)
+        self.loops.append(result)
+        self._last_loop_kf = int(query_id)
+        self._epoch += 1
+        self.detector.reset()
         return result
 
     def _start(self, kf, mp, cand_id: int, check: CandidateCheck, q_ms: float, v_ms: float) -> LoopResult:
@@ -185,29 +229,41 @@ class LoopCloser:
         return result
 
     def poll(self, map, wait: bool = False) -> list[LoopResult]:  # noqa: A002 - the contract's name
-        """Apply the corrections that have finished (all pending ones when ``wait``); returns the loops
-        whose pose-graph or global-BA correction was applied now. The global BA of a loop starts
-        (on a fresh snapshot) once its pose-graph correction is applied."""
+        """Handle the worker's finished jobs in order (all pending ones when ``wait``): a finished
+        verification starts the correction of its accepted loop (or records the rejections); a finished
+        correction is applied. Returns the loops whose pose-graph or global-BA correction was applied
+        now. The global BA of a loop starts (on a fresh snapshot) once its pose-graph correction is
+        applied; a verification begun before the last accepted loop is dropped (its map is gone)."""
         applied: list[LoopResult] = []
         while True:
             done = self.corrector.poll(wait=wait)
             if not done:
                 return applied
-            for corr, (kind, result) in done:
+            for out, (kind, tag) in done:
+                if kind == "verify":
+                    (query, _view, _cands, epoch), q_ms = tag
+                    cand_id, check, rejected, frozen, v_ms = out
+                    self.rejected.extend((int(query.id), c, r, st) for c, r, st in rejected)
+                    if epoch != self._epoch:
+                        continue
+                    if check is not None:
+                        self._accept(map, int(query.id), cand_id, check, frozen, q_ms, v_ms)
+                    continue
+                result = tag
                 t0 = time.perf_counter()
-                changed = apply_correction(map, corr)
+                changed = apply_correction(map, out)
                 ms = 1e3 * (time.perf_counter() - t0)
                 if kind == "pose_graph":
                     result.applied, result.corrected_kf_ids = True, changed
-                    result.n_fused = int(corr.stats.get("fused", 0))
+                    result.n_fused = int(out.stats.get("fused", 0))
                     result.timings_ms["apply"] = ms
                     if self.config.global_ba:
                         self._start_global_ba(map, result)
                 else:
                     result.global_ba_applied = True
-                    result.checks.update({k: v for k, v in corr.stats.items() if k.startswith("gba")})
+                    result.checks.update({k: v for k, v in out.stats.items() if k.startswith("gba")})
                     result.timings_ms["apply_global_ba"] = ms
-                if result not in applied:
+                if not any(r is result for r in applied):
                     applied.append(result)
 
     def _start_global_ba(self, mp, result: LoopResult) -> None:

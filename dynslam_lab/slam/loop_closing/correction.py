@@ -320,10 +320,11 @@ def apply_correction(mp, corr: Correction) -> list[int]:
 
 
 class LoopCorrector:
-    """Runs correction jobs one at a time, in a worker thread (``background``) or at once.
+    """Runs the loop closer's jobs one at a time, in a worker thread (``background``) or at once.
 
-    :meth:`submit` takes a function computing a :class:`Correction` from copies only; :meth:`poll`
-    (frame loop) applies the finished ones to the map and returns them with their apply time.
+    :meth:`submit` takes a function computing from copies only (a :class:`Correction`, or a
+    verification on a frozen map view); :meth:`poll` (frame loop) returns the finished ones in
+    submission order, and the loop closer applies them.
     """
 
     def __init__(self, background: bool) -> None:
@@ -334,6 +335,10 @@ class LoopCorrector:
     @property
     def busy(self) -> bool:
         return bool(self._pending)
+
+    def tags(self) -> list:
+        """Tags of the pending jobs, in submission order."""
+        return [tag for _, tag in self._pending]
 
     def submit(self, fn, tag) -> None:
         """Start ``fn() -> Correction``; ``tag`` comes back with the result."""

@@ -77,12 +77,15 @@ class LoopDetector:
     Attributes
     ----------
     last_candidates : the database's candidates for the last keyframe (for notebooks).
+    last_covisibility : keyframe id -> covisibility (``Map.covisibility``) computed for the last
+        query: the query's and every candidate's (what verification is frozen with).
     """
 
     def __init__(self, config: LoopClosingConfig, database: KeyframeDatabase) -> None:
         self.config = config
         self.database = database
         self.last_candidates: list[LoopCandidate] = []
+        self.last_covisibility: dict[int, dict[int, int]] = {}
         self._groups: list[tuple[set[int], int]] = []
 
     def reset(self) -> None:
@@ -94,12 +97,13 @@ class LoopDetector:
         cfg = self.config
         self.last_candidates = []
         cov = mp.covisibility(kf.id)
+        memo: dict[int, dict[int, int]] = {kf.id: cov}
+        self.last_covisibility = memo
         strong = [k for k, w in cov.items() if w >= cfg.min_neighbour_weight and k in self.database]
         if not strong:
             self._groups = []
             return []
         min_score = min(bow_score(bow, self.database.bow(k)) for k in strong)  # a few neighbours
-        memo: dict[int, dict[int, int]] = {}
 
         def covis(i: int) -> dict[int, int]:  # each keyframe's covisibility once per query
             if i not in memo:
