@@ -20,21 +20,39 @@ from .depth_ransac import DepthRansacConfig
 from .epipolar import EpipolarConfig, LkConfig
 from .flow import FlowConfig
 from .motion_probability import RestorationConfig
+from .multiframe import MultiFrameConfig
 from .multiview import MultiViewConfig
+from .reference_pose import ReferencePoseConfig
+from .regions import RegionConfig
 from .semantic import SemanticConfig
+from .temporal import TemporalConfig
 
-__all__ = ["ScreeningConfig", "STAGES", "FILTER_PRESETS"]
+__all__ = ["ScreeningConfig", "STAGES", "FILTER_PRESETS", "PRESET_OVERRIDES"]
 
 #: Every stage a screener can chain, in the order they run.
-STAGES = ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "level_rule", "restoration")
+STAGES = ("semantic", "depth_ransac", "epipolar", "multiview", "multiframe", "flow", "temporal", "regions",
+          "level_rule", "restoration")
+
+#: The stages that judge keypoints against a reference pose and earlier frames (no detector needed).
+GEOMETRY_STAGES = ("epipolar", "multiview", "multiframe", "temporal", "regions")
 
 #: Named filters (``dynslam run --filters NAME``) -> stages. ``oracle`` is handled apart.
 FILTER_PRESETS: dict[str, tuple[str, ...]] = {
     "none": (),
     "semantic": ("semantic",),  # YOLO-SLAM "D", Chang et al. 2021 "only with YOLACT"
     "depth_ransac": ("semantic", "depth_ransac"),  # YOLO-SLAM "D + G" (boxes + depth-RANSAC)
-    "geometry": ("epipolar", "multiview"),  # Chang et al. 2021 "only with multi-view geometry"
-    "full": ("semantic", "depth_ransac", "epipolar", "multiview", "flow", "restoration"),
+    # Chang et al. 2021 "only with multi-view geometry", extended: DynaSLAM's multi-frame test, temporal
+    # consistency and region growing (docs/robustness.md)
+    "geometry": GEOMETRY_STAGES,
+    "full": ("semantic", "depth_ransac", *GEOMETRY_STAGES[:3], "flow", *GEOMETRY_STAGES[3:], "restoration"),
+}
+
+#: Parameters a named filter sets in the configuration it is built with (``build_screener``), in
+#: the form of ``dynslam_lab.config.with_overrides``. ``depth_ransac`` is YOLO-SLAM's "D + G", which
+#: works on person boxes: masks of the detector are not used. The screener's ``config`` shows the
+#: values it runs with.
+PRESET_OVERRIDES: dict[str, dict] = {
+    "depth_ransac": {"semantic": {"use_masks": False}},
 }
 
 
@@ -49,6 +67,10 @@ class ScreeningConfig:
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig)  # RGB-D multi-view check (Chang et al. 2021)
     flow: FlowConfig = field(default_factory=FlowConfig)  # adaptive-threshold Farneback flow (Chang et al. 2021)
     restoration: RestorationConfig = field(default_factory=RestorationConfig)  # motion probability (Ge et al. 2024)
+    reference: ReferencePoseConfig = field(default_factory=ReferencePoseConfig)  # reference pose on the map (DynaSLAM's low-cost tracking)
+    multiframe: MultiFrameConfig = field(default_factory=MultiFrameConfig)  # free-space test vs earlier frames (DynaSLAM, Bescos et al. 2018)
+    temporal: TemporalConfig = field(default_factory=TemporalConfig)  # map points seen moving, the previous region as a prior (ours)
+    regions: RegionConfig = field(default_factory=RegionConfig)  # region growing from the evidence over depth (ours, after DynaSLAM)
     priors: MotionPriorConfig = field(default_factory=MotionPriorConfig)  # class tables (detection.coco)
     # Stages of the "full" filter; add "level_rule" for Zhang et al.'s level rule. Default: see FILTER_PRESETS.
     full_stages: tuple[str, ...] = FILTER_PRESETS["full"]

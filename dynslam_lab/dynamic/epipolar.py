@@ -43,6 +43,7 @@ __all__ = [
     "estimate_fundamental",
     "epipolar_check",
     "pair_inputs",
+    "fundamental_from_pose",
 ]
 
 
@@ -104,13 +105,16 @@ class EpipolarResult:
     used: np.ndarray
 
 
-def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()):
+def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig(),
+             guess: np.ndarray | None = None):
     """Match current keypoints into the previous image with pyramidal LK.
 
     Parameters
     ----------
     prev_gray, gray : ``(H, W)`` uint8 previous and current images.
     uv : ``(N, 2)`` current keypoint pixels.
+    guess : ``(N, 2)`` where to start the search in the previous image (``OPTFLOW_USE_INITIAL_FLOW``; the
+        multi-frame 2-D test starts at the static prediction), or None (at ``uv``).
 
     Returns
     -------
@@ -126,8 +130,16 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, config.max_iterations, config.epsilon)
     win = (config.win_size, config.win_size)
     p0 = uv.astype(np.float32).reshape(-1, 1, 2)
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, None, winSize=win, maxLevel=config.max_level, criteria=crit)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    if guess is None:
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, None, winSize=win, maxLevel=config.max_level, criteria=crit)
+    else:
+        start = np.asarray(guess, np.float32).reshape(-1, 1, 2).copy()
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p0, start, winSize=win, maxLevel=config.max_level,
+                                              criteria=crit, flags=flags)
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p1, p0.copy(), winSize=win, maxLevel=config.max_level,
+                                               criteria=crit, flags=flags)
     fb = np.linalg.norm(p0b.reshape(-1, 2) - uv, axis=1)
     h, w = gray.shape
     q = p1.reshape(-1, 2).astype(np.float64)
@@ -184,6 +196,18 @@ def estimate_fundamental(p_prev: np.ndarray, p_cur: np.ndarray, config: Epipolar
     return F, mask.reshape(-1).astype(bool)
 
 
+def fundamental_from_pose(T_c_p: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """``F = K^-T [t]_x R K^-1`` of a known motion ``T_c_p`` (previous camera -> current camera),
+    with ``p_cur^T F p_prev = 0`` (Zhang et al. 2023 eq. 15); None when ``t`` is (nearly) zero: a
+    pure rotation has no epipolar geometry."""
+    R, t = np.asarray(T_c_p[:3, :3], float), np.asarray(T_c_p[:3, 3], float)
+    if np.linalg.norm(t) < 1e-4:
+        return None
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    Kinv = np.linalg.inv(np.asarray(K, float))
+    return Kinv.T @ tx @ R @ Kinv
+
+
 def epipolar_check(
     uv: np.ndarray,
     uv_prev: np.ndarray,
@@ -191,6 +215,7 @@ def epipolar_check(
     exclude: np.ndarray | None,
     image_size: tuple[int, int],
     config: EpipolarConfig = EpipolarConfig(),
+    F: np.ndarray | None = None,
 ) -> EpipolarResult:
     """Steps 2-4: F from the pairs outside ``exclude`` and the border, then eq. 17 for all pairs.
 
@@ -200,6 +225,8 @@ def epipolar_check(
     matched : ``(N,)`` bool valid pairs (from :func:`track_lk`).
     exclude : ``(N,)`` bool pairs on potentially moving objects (left out of F), or None.
     image_size : ``(H, W)``.
+    F : a fundamental matrix known from the camera motion (:func:`fundamental_from_pose` of the
+        reference pose); None estimates it from the pairs by RANSAC (the papers' way).
     """
     uv, uv_prev, matched, exclude = pair_inputs("epipolar_check", uv, uv_prev, matched, exclude)
     n = len(uv)
@@ -208,7 +235,10 @@ def epipolar_check(
     away = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
     used = matched & ~exclude & away
     distance = np.full(n, np.nan)
-    F, _ = estimate_fundamental(uv_prev[used], uv[used], config)
+    if F is None:
+        F, _ = estimate_fundamental(uv_prev[used], uv[used], config)
+    else:
+        used = np.zeros(n, bool)  # no pair was needed to estimate F
     if F is None:
         return EpipolarResult(None, distance, np.zeros(n, bool), used)
     distance[matched] = epipolar_distance(F, uv_prev[matched], uv[matched])

@@ -117,6 +117,7 @@ def multiview_check(
     exclude: np.ndarray | None,
     camera,
     config: MultiViewConfig = MultiViewConfig(),
+    T_c_p: np.ndarray | None = None,
 ) -> MultiViewResult:
     """Eq. 2 for every matched keypoint, with the rough pose from the pairs outside ``exclude``.
 
@@ -127,6 +128,8 @@ def multiview_check(
     matched : ``(N,)`` bool valid pairs.
     exclude : ``(N,)`` bool pairs on potentially moving objects, left out of the rough pose.
     camera : :class:`~dynslam_lab.camera.PinholeCamera`.
+    T_c_p : the camera motion previous -> current when it is known (from the reference pose of
+        :mod:`.reference_pose`); None estimates the rough pose by PnP-RANSAC (the paper's way).
     """
     uv, uv_prev, matched, exclude, depth_cur, depth_prev = pair_inputs(
         "multiview_check", uv, uv_prev, matched, exclude, depth_cur=depth_cur, depth_prev=depth_prev
@@ -139,10 +142,11 @@ def multiview_check(
     use = valid & ~exclude
     P = np.full((n, 3), np.nan)
     P[valid] = camera.backproject(uv_prev[valid], depth_prev[valid])
-    T_c_p, inl = rough_pose(P[use], uv[use], camera.K, config)
     if T_c_p is None:
-        return MultiViewResult(None, reproj, derr, np.zeros(n, bool), inliers)
-    inliers[np.flatnonzero(use)[inl]] = True
+        T_c_p, inl = rough_pose(P[use], uv[use], camera.K, config)
+        if T_c_p is None:
+            return MultiViewResult(None, reproj, derr, np.zeros(n, bool), inliers)
+        inliers[np.flatnonzero(use)[inl]] = True
     X = transform_points(T_c_p, P[valid])
     uv_hat, s2 = camera.project(X)
     reproj[valid] = np.linalg.norm(uv[valid] - uv_hat, axis=1)

@@ -1,52 +1,72 @@
 """The screener: the dynamic-feature stages chained by configuration.
 
 ``build_screener(filters, config)`` returns a :class:`Screener` whose ``screen(frame, uv,
-detections)`` fills one :class:`~dynslam_lab.dynamic.table.KeypointTable` per frame (contract
-in ``docs/architecture.md``). ``filters`` is a named preset or a comma-separated stage list:
+detections, context)`` fills one :class:`~dynslam_lab.dynamic.table.KeypointTable` per frame
+(contract in ``docs/architecture.md``). ``filters`` is a named preset or a comma-separated stage list:
 
 =================  =====================================================================
 ``none``           no screening (``build_screener`` returns None)
 ``semantic``       semantic prior: keypoints on a-priori dynamic detections (YOLO-SLAM "D")
 ``depth_ransac``   person boxes + depth-RANSAC (YOLO-SLAM "D + G", Wu et al. 2022)
-``geometry``       epipolar + multi-view checks, no detector (Chang et al. 2021 "multi-view only")
-``full``           semantic (masks), depth-RANSAC for box-only detections, epipolar,
-                   multi-view, adaptive flow, motion-probability restoration
+``geometry``       no detector: epipolar + multi-view against the previous frame (Chang et al.
+                   2021 "multi-view only"), the free-space test against several earlier frames
+                   (DynaSLAM, Bescos et al. 2018), all judged against the reference pose of the
+                   map, then temporal consistency and region growing (ours)
+``full``           semantic (masks), depth-RANSAC for box-only detections, the geometry stages,
+                   adaptive flow, motion-probability restoration
 ``oracle``         the synthetic renderer's truly moving instances (perfect masks)
-``a,b,c``          any of ``semantic, depth_ransac, epipolar, multiview, flow, level_rule, restoration``
+``a,b,c``          any of :data:`~dynslam_lab.dynamic.config.STAGES`
 =================  =====================================================================
 
-How the columns combine into the verdict (per keypoint):
+Each stage is a function of :mod:`.stages` that adds its column; the screener runs the stages of
+its filter in the order of ``STAGES`` and combines the columns (per keypoint):
 
 * ``prior`` = on an a-priori dynamic detection (``semantic``), narrowed to the depth-RANSAC
   consensus set inside boxes when ``depth_ransac`` runs;
 * ``geometric`` = ``epipolar`` and ``multiview`` when the semantic stage runs, either of them
-  otherwise (``ScreeningConfig.geometric_vote="auto"``; ``"both"`` / ``"any"`` force one rule), from LK pairs with the previous frame; pairs on a-priori dynamic
-  detections are left out of F and of the rough pose; a test that cannot run (too few pairs, camera
-  at rest for F) does not vote;
-* ``flow`` = inside a human-driven flow region;
-* ``dynamic = prior or geometric or flow`` (with ``level_rule``: ``prior`` is replaced by
-  "high/medium level", Zhang et al.'s rule);
+  otherwise (``ScreeningConfig.geometric_vote="auto"``; ``"both"`` / ``"any"`` force one rule),
+  from LK pairs with the previous frame; when the semantic stage runs, flags within
+  ``geometry_mask_margin_px`` of an a-priori dynamic detection are dropped; a test that cannot
+  run (too few pairs, camera at rest for F) does not vote;
+* ``evidence`` = ``geometric`` or ``flow`` (inside a human-driven flow region) or ``multiframe``
+  (in space an earlier frame saw through) or ``temporal`` (matched to a map point seen moving)
+  or ``regions`` (inside a region grown from that evidence);
+* ``dynamic = prior or evidence`` (with ``level_rule``: ``prior`` is replaced by "high/medium
+  level", Zhang et al.'s rule);
 * ``restoration`` gives back prior-only keypoints while the static ratio is below ``delta_1``.
 
-The screener keeps the previous grey image and depth between calls; ``reset()`` forgets them
-(the first frame after a reset has no geometric/flow verdict).
+The geometric stages judge the frame against a **reference pose** (:mod:`.reference_pose`): the
+SLAM system's prediction refined on map points, handed over in a
+:class:`~dynslam_lab.dynamic.context.ScreeningContext`; without one (frames screened by hand)
+they estimate the camera motion from the previous frame by RANSAC, as the papers do. The
+screener keeps the last frames (:mod:`.history`) and the map points seen moving between calls;
+``reset()`` forgets them (the first frame after a reset has no geometric verdict).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+
+import dataclasses
 
 import numpy as np
 
-from .config import FILTER_PRESETS, STAGES, ScreeningConfig
+from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
+from .context import ScreeningContext
+from .history import FrameHistory
 from .oracle import OracleScreener
-from .table import KeypointTable, check_uv, depth_at
+from .stages import DETECTION_STAGES, STAGE_FUNCTIONS, FrameWork, ScreenerMemory, combine, finish, restoration_stage
+from .table import KeypointTable, check_uv
+from .regions import splat
+from .temporal import MovingMapPoints
 
-__all__ = ["Screener", "build_screener", "parse_filters", "FILTERS"]
+__all__ = ["Screener", "build_screener", "parse_filters", "preset_config", "FILTERS"]
 
 #: The named filters.
 FILTERS = (*FILTER_PRESETS, "oracle")
+
+#: Stages that use the SLAM system's context (reference pose, earlier frames' poses).
+CONTEXT_STAGES = ("epipolar", "multiview", "multiframe", "temporal", "regions", "flow")
 
 
 def parse_filters(filters: str, config: ScreeningConfig | None = None) -> tuple[str, ...]:
@@ -69,13 +89,29 @@ def parse_filters(filters: str, config: ScreeningConfig | None = None) -> tuple[
     return tuple(s for s in STAGES if s in parts)  # run order
 
 
+def _apply(cfg, overrides: dict):
+    changes = {}
+    for key, value in overrides.items():
+        current = getattr(cfg, key)
+        changes[key] = _apply(current, value) if isinstance(value, dict) else value
+    return dataclasses.replace(cfg, **changes)
+
+
+def preset_config(filters: str, config: ScreeningConfig | None = None) -> ScreeningConfig:
+    """The configuration a named filter runs with: ``config`` with the filter's
+    :data:`~dynslam_lab.dynamic.config.PRESET_OVERRIDES` applied (unchanged for other filters)."""
+    config = config or ScreeningConfig()
+    overrides = PRESET_OVERRIDES.get(str(filters).strip().lower())
+    return _apply(config, overrides) if overrides else config
+
+
 class Screener:
-    """Chained screening stages with one frame of history.
+    """Screening stages chained in run order, with the memory of earlier frames.
 
     Parameters
     ----------
     stages : stage names (see :data:`dynslam_lab.dynamic.config.STAGES`).
-    config : all parameters.
+    config : all parameters (``Screener.config`` is what it runs with).
     name : label for tables and summaries (the filter name).
     """
 
@@ -84,216 +120,112 @@ class Screener:
         bad = [s for s in stages if s not in STAGES]
         if bad:
             raise ValueError(f"Screener: unknown stages {bad}; known: {list(STAGES)}")
-        self.stages = tuple(stages)
-        self.name = name or ",".join(stages)
-        self._prev_gray: np.ndarray | None = None
-        self._prev_depth: np.ndarray | None = None
-        self._rng = np.random.default_rng(self.config.depth_ransac.seed)
+        self.stages = tuple(s for s in STAGES if s in stages)
+        self.name = name or ",".join(self.stages)
+        cfg = self.config
+        self.memory = ScreenerMemory(FrameHistory(cfg.multiframe.history_length + 1),
+                                     MovingMapPoints(cfg.temporal.max_moving_points), cfg.depth_ransac.seed)
+        #: the reference pose (:class:`~dynslam_lab.dynamic.reference_pose.ReferencePose`) the last frame was
+        #: judged against, or None
+        self.last_reference = None
+        #: the last frame's reduced-grid evidence (``FrameWork.grid_evidence``; ``plots.draw_grid`` shows it)
+        self.last_grid: dict[str, np.ndarray] = {}
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
 
-    def reset(self) -> None:
-        """Forget the previous frame (and restart the random stream)."""
-        self._prev_gray = None
-        self._prev_depth = None
-        self._rng = np.random.default_rng(self.config.depth_ransac.seed)
+    @property
+    def uses_context(self) -> bool:
+        """Whether the SLAM system should build a :class:`ScreeningContext` for each frame."""
+        return any(s in CONTEXT_STAGES for s in self.stages)
 
-    # ------------------------------------------------------------------ the chain
-    def screen(self, frame, uv: np.ndarray, detections=None) -> KeypointTable:
+    @property
+    def history_length(self) -> int:
+        """How many earlier frames the screener keeps (the poses the context should carry)."""
+        return self.memory.history.length
+
+    def reset(self) -> None:
+        """Forget the earlier frames, the map points seen moving (and restart the random stream)."""
+        self.memory.reset()
+
+    def screen(self, frame, uv: np.ndarray, detections=None, context: ScreeningContext | None = None) -> KeypointTable:
         """Judge every keypoint of ``frame``.
 
         Parameters
         ----------
         frame : :class:`~dynslam_lab.datasets.frame.Frame` (rgb, depth in metres, camera).
         uv : ``(N, 2)`` keypoint pixels.
-        detections : :class:`~dynslam_lab.detection.detections.Detections` or None.
+        detections : :class:`~dynslam_lab.detection.detections.Detections`; required by the
+            ``semantic`` and ``depth_ransac`` stages (an empty one when nothing was detected).
+        context : what the SLAM system knows before tracking the frame (prediction, poses of the
+            earlier frames, local map), or None (frames screened by hand).
 
         Returns
         -------
         KeypointTable with one column per stage that ran and the final ``dynamic``.
         """
-        from .semantic import semantic_prior
-
-        cfg = self.config
+        needs = [s for s in self.stages if s in DETECTION_STAGES]
+        if needs and detections is None:
+            raise ValueError(
+                f"screening stages {needs} judge keypoints from detections, but none were given for frame "
+                f"{frame.index}; pass the detector's output (an empty Detections when nothing was found), "
+                "or use --filters geometry, which needs no detector"
+            )
         uv = check_uv(uv)
-        n = len(uv)
-        gray = frame.gray
-        shape = gray.shape
-        if self._prev_gray is not None and self._prev_gray.shape != shape:
-            self.reset()  # a new image size: the history does not apply
-        timings: dict[str, float] = {}
-        stages: dict[str, np.ndarray] = {}
-        values: dict[str, np.ndarray] = {}
         t0 = time.perf_counter()
-        z = depth_at(frame.depth, uv)
+        mem = self.memory
+        last = mem.history.last
+        if last is not None and last.gray.shape != frame.gray.shape:
+            self.reset()  # a new image size: the history does not apply
+        if context is not None:
+            mem.history.update_poses(context.poses)
+        w = FrameWork(frame, uv, detections, context, self.config, mem)
+        for name in self.stages:
+            fn = STAGE_FUNCTIONS.get(name)
+            if fn is not None:
+                t = time.perf_counter()
+                fn(w)
+                w.timings[name] = w.timings.get(name, 0.0) + _ms(t)
         on = set(self.stages)
-
-        # 1. semantic prior ------------------------------------------------------
-        use_level_rule = "level_rule" in on
-        sem_cfg = cfg.semantic
-        if "depth_ransac" in on and "epipolar" not in on and "flow" not in on:
-            sem_cfg = replace(sem_cfg, use_masks=False)  # YOLO-SLAM works on boxes
-        if use_level_rule:
-            sem_cfg = replace(sem_cfg, prior="levels")
-        dets = detections if "semantic" in on else None
-        sem = semantic_prior(uv, dets, sem_cfg, cfg.priors)
-        candidate = sem.flagged.copy()  # on a potentially moving detection (left out of F / pose)
-        prior = sem.flagged.copy()
-        if "semantic" in on:
-            stages["semantic"] = sem.flagged.copy()
-        timings["semantic"] = _ms(t0)
-
-        # 2. depth-RANSAC inside boxes ------------------------------------------
-        region_parts: list[np.ndarray] = []
-        box_regions: dict[int, np.ndarray] = {}
-        ran = np.zeros(n, bool)  # keypoints whose prior depth-RANSAC decided
-        if "depth_ransac" in on and dets is not None and len(dets):
-            t = time.perf_counter()
-            from .depth_ransac import screen_boxes
-
-            has_mask = dets.masks is not None and sem_cfg.use_masks
-            run = sem.dynamic_detections & (not has_mask or cfg.depth_ransac_with_masks)
-            dr = np.zeros(n, bool)
-            for d in np.flatnonzero(run):
-                members = sem.instance == d
-                dyn_d, res = screen_boxes(uv[members], z[members], dets.boxes[d : d + 1], cfg.depth_ransac, self._rng,
-                                          depth_image=frame.depth)
-                dr[np.flatnonzero(members)[dyn_d]] = True
-                if res[0] is not None and res[0].depth_range is not None:
-                    box_regions[int(d)] = _box_depth_region(frame.depth, dets.boxes[d], res[0].depth_range)
-            ran = run[np.maximum(sem.instance, 0)] & (sem.instance >= 0)
-            prior = np.where(ran, dr, prior)
-            stages["depth_ransac"] = dr
-            timings["depth_ransac"] = _ms(t)
-
-        # 3./4. epipolar and multi-view checks against the previous frame -------
-        geometric = np.zeros(n, bool)
-        votes: list[np.ndarray] = []
-        T_c_p = None
-        need_pairs = on & {"epipolar", "multiview", "flow"}
-        if need_pairs and self._prev_gray is not None:
-            t = time.perf_counter()
-            from .epipolar import epipolar_check, track_lk
-
-            uv_prev, matched = track_lk(self._prev_gray, gray, uv, cfg.lk)
-            timings["lk"] = _ms(t)
-            if "epipolar" in on:
-                t = time.perf_counter()
-                ep = epipolar_check(uv, uv_prev, matched, candidate, shape, cfg.epipolar)
-                stages["epipolar"] = ep.dynamic
-                values["epipolar_px"] = ep.distance
-                if ep.F is not None:  # a test that could not run does not vote
-                    votes.append(ep.dynamic)
-                timings["epipolar"] = _ms(t)
-            if on & {"multiview", "flow"}:
-                t = time.perf_counter()
-                from .multiview import multiview_check
-
-                z_prev = depth_at(self._prev_depth, np.nan_to_num(uv_prev, nan=-1.0))
-                mv = multiview_check(uv, z, uv_prev, z_prev, matched, candidate, frame.camera, cfg.multiview)
-                T_c_p = mv.T_c_p
-                if "multiview" in on:
-                    stages["multiview"] = mv.dynamic
-                    values["reprojection_px"] = mv.reprojection_px
-                    values["depth_error_m"] = mv.depth_error_m
-                    if mv.T_c_p is not None:
-                        votes.append(mv.dynamic)
-                timings["multiview"] = _ms(t)
-            if votes:
-                vote = cfg.geometric_vote
-                if vote == "auto":
-                    vote = "both" if "semantic" in on else "any"
-                geometric = np.logical_and.reduce(votes) if vote == "both" else np.logical_or.reduce(votes)
-                if "semantic" in on and cfg.geometry_mask_margin_px > 0 and dets is not None and sem.dynamic_detections.any():
-                    near = _near_mask(dets, sem, sem_cfg, shape, cfg.geometry_mask_margin_px)
-                    from .table import values_at
-
-                    geometric &= ~values_at(near, uv, outside=False).astype(bool)
-
-        # 5. adaptive-threshold dense flow --------------------------------------
-        flow_flag = np.zeros(n, bool)
-        if "flow" in on and self._prev_gray is not None and dets is not None and len(dets):
-            t = time.perf_counter()
-            from .flow import flow_regions
-            from .table import values_at
-
-            person = _union(dets.region_masks()[sem.dynamic_detections], shape) if sem.dynamic_detections.any() else None
-            if person is not None and person.any():
-                fr = flow_regions(gray, self._prev_gray, person, frame.depth, frame.camera, T_c_p, cfg.flow)
-                flow_flag = values_at(fr.region, uv, outside=False).astype(bool)
-                region_parts.append(fr.region)
-                values["flow_threshold_px"] = np.full(n, fr.threshold_px)
-            stages["flow"] = flow_flag
-            timings["flow"] = _ms(t)
-
-        # 6. Zhang et al.'s rule, the verdict, and motion-probability restoration ---
-        if use_level_rule:
-            from .geometric_rule import level_rule_verdict
-
-            lvl = sem.level.copy()
-            lvl[~prior & (lvl >= 2)] = 1  # depth-RANSAC background inside a box: judged geometrically
-            dynamic = level_rule_verdict(lvl, geometric) | flow_flag
-            stages["level_rule"] = dynamic.copy()
-            prior = prior & (lvl >= 2)
-        else:
-            dynamic = prior | geometric | flow_flag
-        restored = np.zeros(n, bool)
+        combine(w, on)
         if "restoration" in on:
-            from .motion_probability import restore_by_motion_probability
-
-            rr = restore_by_motion_probability(dynamic, prior, sem.motion_prob, geometric | flow_flag, cfg.restoration)
-            restored = rr.restored
-            dynamic = dynamic & ~restored
-            stages["restoration"] = restored
-
-        reason = np.full(n, "", dtype=object)
-        for st in ("flow", "multiview", "epipolar", "depth_ransac", "semantic"):  # first stage wins: set last
-            if st == "semantic":
-                col = prior & ~ran
-            elif st == "depth_ransac":
-                col = prior & ran
-            else:
-                col = stages.get(st, np.zeros(n, bool))
-                if st in ("epipolar", "multiview"):
-                    col = col & geometric  # with geometric_vote="both" a lone flag does not decide
-            reason[col & dynamic] = st
-        if "level_rule" in stages:
-            reason[dynamic & (reason == "")] = "level_rule"
-        reason[restored] = "restored"
-
-        # region mask: the dynamic detections still dynamic, their box-depth regions, flow regions
-        region_mask = None
-        if dets is not None and len(dets) and "semantic" in on:
-            keep_det = np.zeros(len(dets), bool)
-            inst_dyn = sem.instance[dynamic & prior]
-            keep_det[np.unique(inst_dyn)] = True
-            keep_det &= sem.dynamic_detections
-            for d in np.flatnonzero(keep_det):
-                if int(d) in box_regions:
-                    region_parts.append(box_regions[int(d)])
-                elif dets.masks is not None and sem_cfg.use_masks:
-                    region_parts.append(dets.masks[d])
-                else:
-                    region_parts.append(dets.region_masks()[d])
-        if region_parts:
-            region_mask = _union(np.asarray(region_parts), shape)
-        elif self.stages and "semantic" in on:
-            region_mask = np.zeros(shape, bool)
-
-        self._prev_gray = gray
-        self._prev_depth = frame.depth
-        timings["total"] = _ms(t0)
+            restoration_stage(w)
+        reason, region_mask = finish(w, on, STAGES)
+        self._remember(w, context)
+        w.timings["total"] = _ms(t0)
         return KeypointTable(
-            uv=uv, depth=z, class_id=sem.class_id, instance=sem.instance, motion_prob=sem.motion_prob,
-            dynamic=dynamic, reason=reason, stages=stages, values=values, restored=restored,
-            region_mask=region_mask, timings_ms=timings,
+            uv=uv, depth=w.z, class_id=w.sem.class_id, instance=w.sem.instance, motion_prob=w.sem.motion_prob,
+            dynamic=w.dynamic, reason=reason, stages=w.stages, values=w.values, restored=w.restored,
+            region_mask=region_mask, timings_ms=w.timings,
         )
+
+    def _remember(self, w: FrameWork, context: ScreeningContext | None) -> None:
+        """Keep this frame for the next ones; remember the map points matched to dynamic keypoints."""
+        mem = self.memory
+        ref = w.reference_if_computed
+        self.last_reference = ref  # for notebooks and diagnostics: the reference pose of the last frame
+        self.last_grid = w.grid_evidence()
+        if ref is not None and context is not None:
+            moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
+            if moving.any():
+                mem.moving_points.add(context.map_ids[ref.map_index[moving]])
+        region = w.grid_region
+        if region is None and w.dynamic.any() and "multiframe" in self.stages:
+            region = splat(w.uv, w.dynamic, self.config.multiframe.factor, w.small_depth.shape)
+        T_w_c = None
+        if context is None and self.uses_context:  # no SLAM system: the screener chains its own rough poses
+            if ref is not None and ref.T_c_w is not None:
+                T_w_c = np.linalg.inv(ref.T_c_w)
+            else:
+                for past in mem.history:  # a break in the chain: start a new one here
+                    past.T_w_c = None
+                T_w_c = np.eye(4)
+        mem.history.push(w.past_frame(region, T_w_c))
 
 
 def build_screener(filters: str, config: ScreeningConfig | None = None) -> Screener | OracleScreener | None:
     """The screener of a filter name (``none`` -> None); see the module docstring."""
-    config = config or ScreeningConfig()
+    config = preset_config(filters, config)
     stages = parse_filters(filters, config)
     if stages == ("oracle",):
         return OracleScreener(config)
@@ -302,40 +234,5 @@ def build_screener(filters: str, config: ScreeningConfig | None = None) -> Scree
     return Screener(stages, config, name=str(filters).strip().lower())
 
 
-# ---------------------------------------------------------------------- helpers
 def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
-
-
-def _union(masks: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    masks = np.asarray(masks, bool)
-    if masks.size == 0:
-        return np.zeros(shape, bool)
-    return masks.any(axis=0)
-
-
-def _near_mask(dets, sem, sem_cfg, shape, margin: int) -> np.ndarray:
-    """``(H, W)`` bool: within ``margin`` px of an a-priori dynamic detection (mask, else box)."""
-    import cv2
-
-    sel = sem.dynamic_detections
-    if dets.masks is not None and sem_cfg.use_masks:
-        union = dets.masks[np.flatnonzero(sel)].any(axis=0)
-    else:
-        union = dets.region_masks()[sel].any(axis=0)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-    return cv2.dilate(union.astype(np.uint8), k).astype(bool)
-
-
-def _box_depth_region(depth: np.ndarray, box: np.ndarray, depth_range: tuple[float, float], margin: float = 0.1):
-    """Pixels of ``box`` whose depth lies in the consensus range (+- ``margin`` m): the person."""
-    h, w = depth.shape
-    x1, y1, x2, y2 = np.round(np.asarray(box, float)).astype(int)
-    x1, y1 = max(x1, 0), max(y1, 0)
-    x2, y2 = min(x2, w - 1), min(y2, h - 1)
-    out = np.zeros((h, w), bool)
-    if x2 < x1 or y2 < y1:
-        return out
-    sub = depth[y1 : y2 + 1, x1 : x2 + 1]
-    out[y1 : y2 + 1, x1 : x2 + 1] = (sub >= depth_range[0] - margin) & (sub <= depth_range[1] + margin)
-    return out

@@ -21,15 +21,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from ..config import Config
 from ..datasets.tum import TumSequence
 from ..dynamic.screening import FILTERS
-from ..pipeline import build_pipeline
-from ..runs import atomic_write, run_sequence
-from .scoring import KeypointScorer
+from ..runs import atomic_write
+from .robustness import run_one
 
 __all__ = ["DEFAULT_FILTERS", "run_ablation", "ablation_markdown"]
 
@@ -72,7 +70,8 @@ def run_ablation(
     Returns
     -------
     DataFrame with columns ``sequence, filter, ate_rmse_m, improvement_pct, precision, recall,
-    tracked, lost, frames, screen_median_ms, run_dir``.
+    tracked, lost, frames, loops, screen_median_ms, run_dir`` (each run by
+    :func:`dynslam_lab.experiments.robustness.run_one`, as the robustness benchmark does).
     """
     if isinstance(seqdirs, (str, Path)):
         seqdirs = [seqdirs]
@@ -99,23 +98,20 @@ def run_ablation(
             if name == "oracle" and not truth:
                 continue  # perfect masks exist only for synthetic sequences
             det_spec = "none" if name in _NO_DETECTOR else specs[seq.root]
-            system = build_pipeline(config, seq.camera, detector=det_spec, filters=name, loop_closing=loop_closing)
-            scorer = KeypointScorer()
             run_dir = outdir / seq.name / name.replace(",", "+")
-            summary = run_sequence(seq, run_dir, system, max_frames=max_frames, progress=progress, on_frame=scorer)
-            ate = (summary.get("ate") or {}).get("rmse", float("nan"))
-            screen_ms = np.array(scorer.screen_ms, float)
+            r = run_one(seq, run_dir, config, name, det_spec, loop_closing, max_frames, progress)
             rows.append({
                 "sequence": seq.name,
                 "filter": name,
-                "ate_rmse_m": float(ate) if ate is not None else float("nan"),
-                "precision": scorer.score.precision if truth else float("nan"),
-                "recall": scorer.score.recall if truth else float("nan"),
-                "tracked": summary.get("tracked"),
-                "lost": summary.get("lost"),
-                "frames": summary.get("frames"),
-                "screen_median_ms": float(np.nanmedian(screen_ms)) if name != "none" and np.isfinite(screen_ms).any() else float("nan"),
-                "run_dir": str(run_dir),
+                "ate_rmse_m": r["ate_rmse_m"],
+                "precision": r["precision"] if truth else float("nan"),
+                "recall": r["recall"] if truth else float("nan"),
+                "tracked": r["tracked"],
+                "lost": r["lost"],
+                "frames": r["frames"],
+                "loops": r["loops"],
+                "screen_median_ms": r["screen_ms"],
+                "run_dir": r["run_dir"],
             })
     df = pd.DataFrame(rows)
     if len(df):
@@ -125,7 +121,7 @@ def run_ablation(
             for s, a in zip(df["sequence"], df["ate_rmse_m"])
         ]
         cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "tracked", "lost",
-                "frames", "screen_median_ms", "run_dir"]
+                "frames", "loops", "screen_median_ms", "run_dir"]
         df = df[cols]
     atomic_write(outdir / "ablation.csv", lambda tmp: df.to_csv(tmp, index=False))
     atomic_write(outdir / "ablation.md", lambda tmp: tmp.write_text(ablation_markdown(df)))

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..datasets.frame import Frame
+from ..dynamic.context import ScreeningContext
 from ..evaluation.trajectory import Trajectory
 from ..features.orb import Features, extract_features
 from ..geometry.se3 import se3_inv, transform_points
@@ -191,12 +192,29 @@ class System:
         table = None
         if self.screener is not None:
             t0 = time.perf_counter()
-            table = self.screener.screen(frame, feats.uv, detections)
+            # screeners that judge against the map and earlier frames get the system's knowledge
+            extra = {"context": self._screening_context(feats)} if getattr(self.screener, "uses_context", False) else {}
+            table = self.screener.screen(frame, feats.uv, detections, **extra)
             t["screen"] = 1e3 * (time.perf_counter() - t0)
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
             if len(dynamic) != len(feats):
                 raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
         return dynamic, table
+
+    def _screening_context(self, feats: Features) -> ScreeningContext:
+        """What the screener may use before tracking (``dynamic.context``): the constant-velocity
+        prediction, the poses of the last tracked frames (by timestamp) and the local map points."""
+        tr = self.tracker
+        T_pred = None  # constant velocity; constant position while the velocity is unknown (frame 1, after relocalisation)
+        if tr.state in (TrackState.OK, TrackState.RELOCALIZED) and tr.last is not None and tr.last.T_w_c is not None:
+            T_pred = se3_inv(tr.last.T_w_c) if tr.velocity is None else tr.velocity @ se3_inv(tr.last.T_w_c)
+        poses = {ts: self.map.keyframe_pose(ref) @ T_ref_c for ts, ref, T_ref_c in self._anchors[-self.screener.history_length:]}
+        kf_ids = [k for k in tr.local_kf_ids if k in self.map.keyframes]
+        ids = np.concatenate([self.map.keyframes[k].map_point_ids for k in kf_ids]) if kf_ids else np.zeros(0, np.int64)
+        ids = np.unique(ids[ids >= 0])
+        ids = ids[self.map.alive[ids]]
+        return ScreeningContext(T_pred, poses, ids, self.map.xyz[ids], self.map.descriptors[ids], feats.descriptors, feats.octave,
+                                self.config.orb.scale_factor)
 
     def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False) -> tuple[KeyFrame, np.ndarray]:
         """Insert a keyframe made from ``sf`` with new points from depth (all of them at the

@@ -1,0 +1,127 @@
+"""The screener's memory of earlier frames: images, depth, poses and verdicts.
+
+The two-frame checks of the papers need the previous frame; the multi-frame check (DynaSLAM,
+Bescos et al. 2018) and the temporal prior need several earlier ones. The screener keeps the
+last ``length`` frames it screened (:class:`PastFrame`: grey image, depth,
+the reduced depth of the dense tests, the dynamic region it judged) and learns their poses from
+the SLAM system afterwards: each :class:`~dynslam_lab.dynamic.context.ScreeningContext` carries
+the poses of the last tracked frames, keyed by timestamp, and :meth:`FrameHistory.update_poses`
+writes them into the matching entries (so poses corrected by local BA or a loop closure replace
+the old ones; an entry the system did not track keeps no pose and is never used as a reference).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = ["PastFrame", "FrameHistory", "reduce_depth"]
+
+
+def reduce_depth(depth: np.ndarray, factor: int, max_spread: float = 0.05, min_valid: float = 0.25) -> np.ndarray:
+    """Depth image reduced ``factor`` times per side: the mean of the valid readings of each block.
+
+    A block whose valid readings have a standard deviation above ``max_spread`` times their mean
+    (it straddles a depth edge) or with fewer than ``min_valid`` of its pixels read gets 0 (no reading), so that no
+    reduced pixel floats between a foreground and a background surface. Returns
+    ``(H // factor, W // factor)`` float32 metres (block means by ``cv2.resize`` ``INTER_AREA``).
+    """
+    d = np.asarray(depth, np.float32)
+    h, w = d.shape
+    hs, ws = h // factor, w // factor
+    d = d[: hs * factor, : ws * factor]
+    valid = (d > 0).astype(np.float32)
+    d = d * valid  # nan-free, 0 where no reading
+    size = (ws, hs)
+    frac = cv2.resize(valid, size, interpolation=cv2.INTER_AREA)
+    s1 = cv2.resize(d, size, interpolation=cv2.INTER_AREA)
+    s2 = cv2.resize(d * d, size, interpolation=cv2.INTER_AREA)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = s1 / frac
+        var = s2 / frac - mean * mean
+    ok = (frac >= min_valid) & (var <= (max_spread * mean) ** 2)
+    return np.where(ok, mean, 0.0).astype(np.float32)
+
+
+@dataclass(eq=False)
+class PastFrame:
+    """One screened frame kept for later frames.
+
+    Attributes
+    ----------
+    index, timestamp : the frame.
+    gray : ``(H, W)`` uint8.
+    depth : ``(H, W)`` float32 metres.
+    small_depth : reduced depth of the dense tests (None until first needed).
+    region : ``(h, w)`` bool dynamic pixels judged at that frame on the reduced grid, or None.
+    T_w_c : ``(4, 4)`` pose from the SLAM system once known, else None.
+    """
+
+    index: int
+    timestamp: float
+    gray: np.ndarray
+    depth: np.ndarray
+    small_depth: np.ndarray | None = None
+    region: np.ndarray | None = None
+    T_w_c: np.ndarray | None = None
+    cache: dict = field(default_factory=dict)
+
+
+class FrameHistory:
+    """The last ``length`` screened frames, newest last."""
+
+    def __init__(self, length: int) -> None:
+        if length < 1:
+            raise ValueError(f"FrameHistory: length must be >= 1, got {length}")
+        self.length = int(length)
+        self._frames: deque[PastFrame] = deque(maxlen=self.length)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def clear(self) -> None:
+        self._frames.clear()
+
+    @property
+    def last(self) -> PastFrame | None:
+        return self._frames[-1] if self._frames else None
+
+    def push(self, frame: PastFrame) -> None:
+        self._frames.append(frame)
+
+    def update_poses(self, poses: dict[float, np.ndarray]) -> None:
+        """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp)."""
+        if not poses:
+            return
+        for f in self._frames:
+            T = poses.get(float(f.timestamp))
+            if T is not None:
+                f.T_w_c = np.asarray(T, np.float64)
+
+    def back(self, offset: int) -> PastFrame | None:
+        """The frame ``offset`` positions before the newest one would be pushed (1 = the last one)."""
+        if offset < 1 or offset > len(self._frames):
+            return None
+        return self._frames[-offset]
+
+    def with_pose(self, offsets) -> list[PastFrame]:
+        """Kept frames at these offsets (1 = last) that have a pose, each at most once, newest first.
+        Where the frame at an offset has no pose, the nearest older frame with one stands in."""
+        out: list[PastFrame] = []
+        seen: set[int] = set()
+        n = len(self._frames)
+        for o in sorted(set(int(o) for o in offsets)):
+            for k in range(o, n + 1):
+                f = self._frames[-k]
+                if f.T_w_c is not None:
+                    if id(f) not in seen:
+                        seen.add(id(f))
+                        out.append(f)
+                    break
+        return out

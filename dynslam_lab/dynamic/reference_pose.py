@@ -1,0 +1,332 @@
+"""The reference pose every geometric check judges a frame against: the static world's, not the movers'.
+
+The two-frame checks of Chang et al. 2021 (Sec. IV-A, "slightly tracking") and Ge et al. 2024
+(Sec. 2.3) estimate the camera motion from the keypoint pairs of the frame itself, by RANSAC
+(PnP or a fundamental matrix). RANSAC returns the largest consistent set; when movers cover
+much of the image (a person close to the camera, two boxes carried across it) that set can be
+the movers, and every static keypoint is then judged moving. DynaSLAM (Bescos et al. 2018,
+Sec. III-C) avoids it with a "low-cost tracking" of the frame against the map before the
+multi-view test: the map holds points of earlier frames that were screened, so only static
+keypoints find partners in it.
+
+What we do (the matching follows ORB-SLAM2's motion model, Mur-Artal & Tardos 2017; the gating
+and the fallbacks are ours):
+
+1. **Prediction.** The SLAM system's constant-velocity prediction ``T_c_w_pred`` of the frame
+   (``ScreeningContext``), when there is one.
+2. **Map matches.** The local map points are projected with the prediction and each is matched
+   to the keypoints within ``search_radius_px`` of its projection by ORB descriptor (Hamming
+   distance <= ``max_hamming``, best / second best <= ``ratio``;
+   :func:`dynslam_lab.features.matching.search_by_projection`). Map points the screener has seen
+   moving (temporal consistency, :mod:`.temporal`) are left out.
+3. **Refinement.** Matches within ``gate_px`` of the prediction refine it by iteratively
+   reweighted Gauss-Newton on the reprojection error with a Cauchy weight whose scale shrinks
+   (``scales_px``, 4 px down to 0.7 px). Because the refinement starts at the prediction, only
+   admits matches already close to it and ends with a tight scale, a mover cannot pull the pose:
+   its keypoints have no partner among the map points, or one far from the prediction, or (a
+   mover mapped while it stood still that starts to move) one whose displacement puts it outside
+   the final scale while the static majority agrees within it. Near-field movers matter most
+   here: a distant background hardly constrains the camera's translation (it trades against a
+   rotation), so a least-squares fit over every match would follow a close box by centimetres.
+   Keypoints matched well to a map point but farther than ``moving_px`` from it under the refined
+   pose saw that point move (``moved``; :mod:`.temporal` remembers it).
+3b. **Surfaces that move against the rest** (ours). The refinement cannot tell a camera that
+   moved from a close box that moved while the rest of the map is far: the far background
+   barely resists. So every surface of the frame holding enough matches (a connected piece of
+   the depth image without depth steps or creases, :func:`~dynslam_lab.dynamic.regions.surface_segments`)
+   is left out in turn and the pose refined on the others; a surface whose matches then miss
+   their map points by much more than the others do has moved (a box mapped while it stood
+   still and now pushed away). With two such groups the evidence is symmetric (the box moved,
+   or everything else did): a surface with less than half the matches is the mover (the static
+   majority); a larger one only when leaving it out brings the pose closer to the
+   constant-velocity prediction. Surfaces are joined across convex edges
+   (an object stays whole) and cut at concave ones (from the floor it stands on). Its matches
+   leave the final refinement and mark its keypoints.
+4. **Fallbacks.** Fewer than ``min_inliers`` matches: the prediction itself when there is one
+   (``source="prediction"``); no prediction either: the two-frame rough pose of the multi-view
+   check (``source="two_frame"``, RANSAC, the papers' way), or none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..features.matching import search_by_projection
+from ..geometry.se3 import se3_inv, transform_points
+
+__all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "map_reference_pose"]
+
+
+@dataclass(frozen=True)
+class ReferencePoseConfig:
+    """Parameters of the reference pose (DynaSLAM's low-cost tracking, Bescos et al. 2018; values ours)."""
+
+    search_radius_px: float = 8.0  # map points matched within this distance of their predicted pixel (px); ORB-SLAM2 motion model 15, ours 8 (beyond gate_px a match only reports a moved point)
+    max_hamming: int = 80  # largest Hamming distance of a map match (bits); ORB-SLAM2 TH_HIGH 100, ours 80 (stricter)
+    ratio: float = 0.8  # best / second-best Hamming distance among candidates of one map point; ORB-SLAM2 0.8
+    gate_px: float = 6.0  # matches farther than this from the prediction stay out of the refinement (px); ours
+    inlier_px: float = 2.5  # reprojection error of the final inliers (px); ours (ORB-SLAM2's chi^2 5.991 at 1 px sigma ~ 2.45)
+    min_inliers: int = 25  # fewer inliers: keep the prediction unrefined (px); ours
+    scales_px: tuple[float, ...] = (4.0, 2.0, 1.0, 0.7)  # Cauchy scales of the robust refinement, widest first (px); ours
+    moving_px: float = 4.0  # a keypoint this far from its map point under the reference pose saw the point move (px); ours
+    moving_hamming: int = 50  # ... when its descriptor matches the point this well (bits); ORB-SLAM2 TH_LOW 50
+    segment_min_matches: int = 15  # surfaces with fewer map matches are not tested on their own (step 3b); ours
+    segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
+    segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
+    segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
+    max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
+    max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
+
+    def __post_init__(self) -> None:
+        for name in ("search_radius_px", "gate_px", "inlier_px", "max_correction_m", "max_correction_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ReferencePoseConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not 0 <= self.max_hamming <= 256:
+            raise ValueError(f"ReferencePoseConfig.max_hamming must be in [0, 256] bits, got {self.max_hamming}")
+        if not 0 < self.ratio <= 1:
+            raise ValueError(f"ReferencePoseConfig.ratio must be in (0, 1], got {self.ratio}")
+        if not self.scales_px or any(v <= 0 for v in self.scales_px):
+            raise ValueError(f"ReferencePoseConfig.scales_px must be positive pixel scales, got {self.scales_px}")
+        if self.moving_px <= self.inlier_px:
+            raise ValueError(f"ReferencePoseConfig.moving_px ({self.moving_px}) must exceed inlier_px ({self.inlier_px})")
+        if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1 or self.segment_max_movers < 0:
+            raise ValueError("ReferencePoseConfig: segment_min_matches >= 6, segment_min_px > 0, segment_ratio > 1 and "
+                             "segment_max_movers >= 0 required")
+        if self.min_inliers < 6:
+            raise ValueError(f"ReferencePoseConfig.min_inliers must be >= 6 (a pose has 6 unknowns), got {self.min_inliers}")
+
+
+@dataclass
+class ReferencePose:
+    """The pose a frame is judged against.
+
+    Attributes
+    ----------
+    T_c_w : ``(4, 4)`` world -> camera pose, or None (no reference: the checks fall back to the
+        previous frame's rough pose or are skipped).
+    source : ``"map"`` (refined on map points), ``"prediction"`` (the system's prediction as is),
+        ``"two_frame"`` (RANSAC rough pose from the previous frame) or ``""``.
+    map_index : ``(N,)`` int64 row of the context's map point matched to each keypoint, -1 for none.
+    residual_px : ``(N,)`` reprojection error of each matched keypoint under ``T_c_w`` (nan unmatched).
+    inliers : ``(N,)`` bool, matched keypoints within ``inlier_px`` of their map point.
+    moved : ``(N,)`` bool, keypoints matched well (``moving_hamming``) but farther than ``moving_px``
+        from their map point: the point may have moved since it was mapped (or the match is wrong).
+    surface_moved : ``(N,)`` bool, keypoints on a surface that moves against the rest (step 3b).
+    known_moving : ``(N,)`` bool, keypoints matched to a map point seen moving before.
+    """
+
+    T_c_w: np.ndarray | None
+    source: str
+    map_index: np.ndarray
+    residual_px: np.ndarray
+    inliers: np.ndarray
+    moved: np.ndarray
+    surface_moved: np.ndarray
+    known_moving: np.ndarray
+
+    @classmethod
+    def none(cls, n: int) -> "ReferencePose":
+        z = np.zeros(n, bool)
+        return cls(None, "", np.full(n, -1, np.int64), np.full(n, np.nan), z, z.copy(), z.copy(), z.copy())
+
+
+def _reprojection_px(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.ndarray:
+    X = transform_points(T_c_w, X_w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2]
+        v = K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]
+    err = np.hypot(u - uv[:, 0], v - uv[:, 1])
+    return np.where(X[:, 2] > 0, err, np.inf)
+
+
+def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, scales_px=(4.0, 2.0, 1.0),
+                iterations: int = 3, sigma: np.ndarray | None = None) -> np.ndarray:
+    """Robust Gauss-Newton refinement of ``T_c_w`` on the reprojection error of ``X_w (M, 3)`` at ``uv (M, 2)``.
+
+    Iteratively reweighted least squares with the Cauchy weight ``1 / (1 + (|r| / s)^2)`` on the
+    residual in units of each keypoint's ``sigma (M,)`` (px; ORB-SLAM2 uses the pyramid scale of the
+    keypoint's level), the scale ``s`` shrinking through ``scales_px`` (``iterations`` Gauss-Newton
+    steps each), the pose updated on the left (``T <- exp(delta) T``).
+    """
+    T = np.asarray(T_c_w, np.float64).copy()
+    X_w = np.asarray(X_w, np.float64)
+    uv = np.asarray(uv, np.float64)
+    inv_sigma = np.ones(len(X_w)) if sigma is None else 1.0 / np.asarray(sigma, np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    for s in scales_px:
+        for _ in range(int(iterations)):
+            X = X_w @ T[:3, :3].T + T[:3, 3]
+            z = X[:, 2]
+            ok = z > 1e-6
+            if ok.sum() < 6:
+                return T
+            x, y, z = X[ok, 0], X[ok, 1], z[ok]
+            iz = 1.0 / z
+            isg = inv_sigma[ok]
+            r = (uv[ok] - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
+            w = isg * isg / (1.0 + (np.einsum("ij,ij->i", r, r) / (s * s)))
+            # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point, one (M, 6) block per row
+            xz, yz = x * iz, y * iz
+            Ju = np.column_stack([-fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * iz, np.zeros_like(iz), -fx * xz * iz])
+            Jv = np.column_stack([-fy * (1 + yz * yz), fy * xz * yz, fy * xz, np.zeros_like(iz), fy * iz, -fy * yz * iz])
+            H = Ju.T @ (Ju * w[:, None]) + Jv.T @ (Jv * w[:, None])
+            rw = r / isg[:, None] * w[:, None]  # residuals in px, weighted
+            g = Ju.T @ rw[:, 0] + Jv.T @ rw[:, 1]
+            try:
+                delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                return T
+            dT = np.eye(4)
+            dT[:3, :3] = cv2.Rodrigues(delta[:3])[0]  # exp of the rotation part (OpenCV: no scipy call per step)
+            dT[:3, 3] = delta[3:]
+            T = dT @ T
+            if np.linalg.norm(delta) < 1e-8:
+                break
+    return T
+
+
+def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig):
+    """Step 2: map points matched to keypoints near their predicted pixels.
+
+    Returns ``(rows, kp, hamming)``: rows of the context's map arrays, the keypoint index and the
+    descriptor distance of each match.
+    """
+    T = context.T_c_w_pred
+    n_map = context.n_map_points
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if T is None or n_map == 0 or context.descriptors is None or len(uv) == 0:
+        return empty
+    rows = np.arange(n_map)
+    uv_hat, z = camera.project(transform_points(T, context.map_xyz[rows]))
+    vis = (z > 0) & camera.in_image(uv_hat)
+    rows, uv_hat = rows[vis], uv_hat[vis]
+    if len(rows) == 0:
+        return empty
+    m = search_by_projection(uv_hat, context.map_descriptors[rows], np.full(len(rows), config.search_radius_px), None,
+                             uv, context.octave, context.descriptors, max_distance=config.max_hamming, ratio=config.ratio)
+    return rows[m.idx_a], m.idx_b, m.distance
+
+
+def _correction_ok(T_a: np.ndarray, T_b: np.ndarray, config: ReferencePoseConfig) -> bool:
+    D = T_a @ se3_inv(T_b)
+    ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    return bool(np.linalg.norm(D[:3, 3]) <= config.max_correction_m and ang <= config.max_correction_deg)
+
+
+def _pose_gap_px(T_a: np.ndarray, T_b: np.ndarray, X_w: np.ndarray, K: np.ndarray) -> float:
+    """Median pixel distance between the projections of ``X_w`` under two poses."""
+    ua, _ = _project(T_a, X_w, K)
+    ub, _ = _project(T_b, X_w, K)
+    return float(np.nanmedian(np.linalg.norm(ua - ub, axis=1)))
+
+
+def _project(T: np.ndarray, X_w: np.ndarray, K: np.ndarray):
+    X = transform_points(T, X_w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([K[0, 0] * X[:, 0] / X[:, 2] + K[0, 2], K[1, 1] * X[:, 1] / X[:, 2] + K[1, 2]], axis=1)
+    return uv, X[:, 2]
+
+
+def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
+                          labels: np.ndarray, use: np.ndarray, config: "ReferencePoseConfig",
+                          T_pred: np.ndarray | None = None) -> np.ndarray:
+    """Step 3b: the matches on surfaces that move against the rest of the map.
+
+    Each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches, leaving at
+    least ``segment_min_matches`` others, is left out in turn and the pose refined on the others (from
+    ``T_c_w``, on the matches ``use``). The surface is inconsistent when its median error (in units of
+    ``sigma``) under that pose exceeds both ``segment_min_px`` and ``segment_ratio`` times the median of
+    the others. Two groups that disagree are symmetric (is the box moving, or everything but the
+    box?): a surface holding less than half the matches is moving (the static majority); one holding
+    more only when the pose without it lies closer to the constant-velocity prediction ``T_pred``
+    than the pose with it. The worst such surface (minorities first) is removed and the search
+    repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
+    """
+    out = np.zeros(len(X_w), bool)
+    use = use.copy()
+    T = T_c_w
+    for _ in range(config.segment_max_movers):
+        labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
+        total = int(use.sum())
+        cand = labs[(counts >= config.segment_min_matches) & (total - counts >= config.segment_min_matches)]
+        best, best_key, best_T = None, None, None
+        gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
+        for lab, count in zip(cand, counts[np.isin(labs, cand)]):
+            on = (labels == lab) & use
+            rest = use & ~on
+            T_l = refine_pose(T, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
+            e = _reprojection_px(T_l, X_w, uv, K) / sigma
+            r_on, r_rest = np.median(e[on]), np.median(e[rest])
+            bound = max(config.segment_min_px, config.segment_ratio * r_rest)
+            if r_on <= bound:
+                continue
+            minority = 2 * count < total
+            if not minority and (T_pred is None or _pose_gap_px(T_l, T_pred, X_w[use], K) >= gap_with):
+                continue  # most of the map would be moving, and the prediction does not say so
+            key = (minority, r_on / bound)  # the static majority first, then the prediction
+            if best_key is None or key > best_key:
+                best, best_key, best_T = lab, key, T_l
+        if best is None:
+            break
+        on = labels == best
+        out |= on
+        use &= ~on
+        T = best_T
+    return out
+
+
+def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseConfig = ReferencePoseConfig(),
+                       exclude_ids=None, surfaces: np.ndarray | None = None) -> ReferencePose:
+    """Steps 1-4 except the two-frame fallback (which needs the LK pairs; see :mod:`.stages`).
+
+    Parameters
+    ----------
+    context : :class:`~dynslam_lab.dynamic.context.ScreeningContext` (prediction, local map, descriptors).
+    uv : ``(N, 2)`` keypoint pixels (undistorted).
+    camera : intrinsics.
+    exclude_ids : ids of map points seen moving: matched (their keypoints are reported) but left out
+        of the refinement and never inliers.
+    surfaces : ``(N,)`` int surface label of each keypoint (0 = none) for step 3b, or None.
+
+    Returns
+    -------
+    :class:`ReferencePose`; ``T_c_w`` None when the context has no prediction.
+    """
+    n = len(uv)
+    out = ReferencePose.none(n)
+    if context is None or context.T_c_w_pred is None:
+        return out
+    T_pred = context.T_c_w_pred
+    out.T_c_w, out.source = T_pred, "prediction"
+    rows, kp, ham = match_map_points(context, uv, camera, config)
+    if len(rows) < config.min_inliers:
+        return out
+    K = camera.K
+    X, q = context.map_xyz[rows], uv[kp]
+    sigma = context.scale_factor ** context.octave[kp].astype(np.float64)
+    err = _reprojection_px(T_pred, X, q, K)
+    known_moving = np.isin(context.map_ids[rows], exclude_ids) if exclude_ids is not None and len(exclude_ids) else np.zeros(len(rows), bool)
+    use = (err < config.gate_px) & ~known_moving
+    if use.sum() < config.min_inliers:
+        return out
+    T = refine_pose(T_pred, X[use], q[use], K, config.scales_px, sigma=sigma[use])
+    moving = np.zeros(len(rows), bool)
+    if surfaces is not None:
+        moving = inconsistent_surfaces(T, X, q, K, sigma, np.asarray(surfaces)[kp], use, config, T_pred)
+        keep = use & ~moving
+        if moving.any() and keep.sum() >= config.min_inliers:
+            T = refine_pose(T, X[keep], q[keep], K, config.scales_px[-2:], sigma=sigma[keep])
+    err = _reprojection_px(T, X, q, K)
+    if (err < config.inlier_px).sum() < config.min_inliers or not _correction_ok(T, T_pred, config):
+        return out
+    out.T_c_w, out.source = T, "map"
+    out.map_index[kp] = rows
+    out.residual_px[kp] = err
+    out.inliers[kp] = (err < config.inlier_px) & ~moving & ~known_moving
+    out.moved[kp] = (err > config.moving_px) & (ham <= config.moving_hamming)
+    out.surface_moved[kp] = moving
+    out.known_moving[kp] = known_moving
+    return out

@@ -1,0 +1,187 @@
+"""From dynamic keypoints to dynamic regions: a moving object is removed as a whole.
+
+Every geometric test judges points: a keypoint (epipolar, multi-view), a pixel (the free-space
+test of :mod:`.multiframe`). A moving object also has parts no test can judge: low-texture
+patches without keypoints, surfaces that moved within themselves (a flat box face sliding
+sideways keeps its depth), parts hidden in the earlier frames. DynaSLAM (Bescos et al. 2018,
+Sec. III-C) grows its dynamic keypoints into regions "in the depth image" around them; Chang et
+al. 2021 (Sec. III-C) join the flow regions that touch a person mask. We grow regions from the
+evidence over the depth image on the reduced grid of the dense tests (our construction):
+
+* **seeds**: cells with fresh evidence (a free-space violation in any earlier frame, a dynamic
+  keypoint of a geometric test);
+* **growth**: up to ``steps`` cells (4-neighbour steps), only between neighbours whose depths differ
+  by less than ``continuity_rel`` of the depth (a depth edge stops it), and never into a cell
+  that the multi-frame test confirms static (no earlier frame saw through it or lost it, at least
+  ``static_min_agree`` agree, and no more saw it hidden than agree), unless the cell carries the
+  temporal prior (the previous frame's region, :mod:`.temporal`): a slow mover whose cells look
+  static in this frame stays dynamic while some fresh evidence on it remains;
+* **support**: a part of the grown region, joined across continuous depth only, is kept when it
+  holds at least ``min_fresh_cells`` cells of fresh evidence, so a lone noisy cell grows nothing and
+  the prior fades as soon as the fresh evidence does (a mover that stopped).
+
+The result is an ``(h, w)`` bool grid of dynamic cells; keypoints inside it are dynamic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "cells_at", "splat"]
+
+
+@dataclass(frozen=True)
+class RegionConfig:
+    """Parameters of region growing on the reduced grid (ours, after DynaSLAM's region growing, Bescos et al. 2018)."""
+
+    steps: int = 8  # growth steps from the seeds (cells; 8 x 4 px = 32 px at factor 4); ours
+    continuity_rel: float = 0.04  # neighbours join when |z_a - z_b| < continuity_rel * min(z_a, z_b); ours
+    static_min_agree: int = 2  # a cell is confirmed static when this many earlier frames (and all tested) agree; ours
+    min_fresh_cells: int = 3  # a region needs this many cells of fresh evidence; ours
+    seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
+    crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
+
+    def __post_init__(self) -> None:
+        if self.steps < 0 or self.min_fresh_cells < 1 or self.static_min_agree < 1:
+            raise ValueError("RegionConfig: steps >= 0, min_fresh_cells >= 1 and static_min_agree >= 1 required")
+        if not 0 < self.crease_deg < 180:
+            raise ValueError(f"RegionConfig.crease_deg must be in (0, 180) degrees, got {self.crease_deg}")
+        if not 0 < self.continuity_rel < 1:
+            raise ValueError(f"RegionConfig.continuity_rel must be in (0, 1), got {self.continuity_rel}")
+
+
+def depth_continuity(depth: np.ndarray, rel: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(h, w - 1)`` and ``(h - 1, w)`` bool: horizontal and vertical neighbours on one surface
+    (both with depth, ``|z_a - z_b| < rel * min(z_a, z_b)``)."""
+    z = np.asarray(depth, np.float32)
+    a, b = z[:, 1:], z[:, :-1]
+    horiz = (a > 0) & (b > 0) & (np.abs(a - b) < rel * np.minimum(a, b))
+    a, b = z[1:], z[:-1]
+    vert = (a > 0) & (b > 0) & (np.abs(a - b) < rel * np.minimum(a, b))
+    return horiz, vert
+
+
+def crease_continuity(depth: np.ndarray, camera, max_angle_deg: float, join_convex: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``(h, w - 1)`` and ``(h - 1, w)`` bool: neighbours not separated by a concave crease of the surface.
+
+    Normals come from central differences of the back-projected grid (``camera`` of the grid),
+    turned towards the camera; the edge between cells ``x`` and ``x + 1`` is a crease when the normals
+    at ``x - 1`` and ``x + 2`` (either side, beyond the cells a corner blurs) differ by more than
+    ``max_angle_deg``. With ``join_convex`` a convex crease (the edge of a box, the normals turning away
+    from each other: ``(n_a - n_b) . (p_a - p_b) > 0``) still joins, so an object stays whole while it
+    is cut from the floor it stands on and the wall it leans against (concave creases), the local
+    convexity criterion of Stein et al. (CVPR 2014, LCCP). Cells without depth join nothing.
+    """
+    z = np.asarray(depth, np.float32)
+    h, w = z.shape
+    X = ((np.arange(w, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :] * z
+    Y = ((np.arange(h, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None] * z
+    P = (X, Y, z)  # one (h, w) plane per coordinate: the vector arithmetic below stays on contiguous planes
+    dx = [np.gradient(a, axis=1) for a in P]  # central differences, one-sided at the border
+    dy = [np.gradient(a, axis=0) for a in P]
+    n = [dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]]
+    flip = np.where(n[0] * X + n[1] * Y + n[2] * z > 0, np.float32(-1), np.float32(1))  # towards the camera
+    norm = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+    scale = np.where(norm > 0, flip / np.maximum(norm, np.float32(1e-12)), np.float32(0))  # 0 where undefined
+    n = [a * scale for a in n]
+    defined = norm > 0
+    c = np.float32(np.cos(np.radians(max_angle_deg)))
+
+    def joined(sa, sb) -> np.ndarray:
+        na, nb = [a[sa] for a in n], [a[sb] for a in n]
+        ok = (na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]) >= c
+        ok |= ~(defined[sa] & defined[sb])  # never a crease where a normal is undefined
+        if join_convex:
+            ok |= sum((na[k] - nb[k]) * (P[k][sa] - P[k][sb]) for k in range(3)) > 0
+        return ok
+
+    horiz = np.ones((h, w - 1), bool)
+    horiz[:, 1:-1] = joined((slice(None), slice(0, w - 3)), (slice(None), slice(3, w)))
+    vert = np.ones((h - 1, w), bool)
+    vert[1:-1] = joined((slice(0, h - 3), slice(None)), (slice(3, h), slice(None)))
+    return horiz, vert
+
+
+def surface_segments(depth: np.ndarray, camera, continuity_rel: float, crease_deg: float) -> tuple[int, np.ndarray]:
+    """Surfaces of a depth grid: cells joined across continuous depth and no crease
+    (:func:`depth_continuity`, :func:`crease_continuity`). Returns ``(n labels, (h, w) int32)``, 0 = no depth."""
+    ch, cv = depth_continuity(depth, continuity_rel)
+    kh, kv = crease_continuity(depth, camera, crease_deg)
+    return continuity_components(np.asarray(depth) > 0, (ch & kh, cv & kv))
+
+
+def grow_regions(seeds: np.ndarray, allowed: np.ndarray, continuity: tuple[np.ndarray, np.ndarray], steps: int) -> np.ndarray:
+    """Geodesic growth of ``seeds (h, w)`` through ``allowed`` cells over continuous neighbours, ``steps`` times."""
+    horiz, vert = continuity
+    grown = np.asarray(seeds, bool).copy()
+    allowed = np.asarray(allowed, bool)
+    for _ in range(int(steps)):
+        new = np.zeros_like(grown)
+        new[:, 1:] |= grown[:, :-1] & horiz
+        new[:, :-1] |= grown[:, 1:] & horiz
+        new[1:] |= grown[:-1] & vert
+        new[:-1] |= grown[1:] & vert
+        new &= allowed & ~grown
+        if not new.any():
+            break
+        grown |= new
+    return grown
+
+
+def continuity_components(mask: np.ndarray, continuity: tuple[np.ndarray, np.ndarray]) -> tuple[int, np.ndarray]:
+    """Connected parts of ``mask (h, w)`` whose neighbours join only across continuous depth.
+
+    The cells and the joining edges are laid on a grid twice as fine (cell ``(i, j)`` at ``(2i, 2j)``,
+    the edge to its right at ``(2i, 2j + 1)``, the one below at ``(2i + 1, 2j)``), so that one
+    ``cv2.connectedComponents`` call (4-connected) labels them. Returns ``(n labels, (h, w) int32)``,
+    0 outside ``mask``.
+    """
+    horiz, vert = continuity
+    m = np.asarray(mask, bool)
+    h, w = m.shape
+    fine = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
+    fine[::2, ::2] = m
+    fine[::2, 1::2] = m[:, 1:] & m[:, :-1] & horiz
+    fine[1::2, ::2] = m[1:] & m[:-1] & vert
+    n, labels = cv2.connectedComponents(fine, connectivity=4)
+    return n, labels[::2, ::2]
+
+
+def supported_regions(region: np.ndarray, fresh: np.ndarray, min_fresh: int,
+                      continuity: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The parts of ``region`` (joined across continuous depth only) that hold at least ``min_fresh``
+    cells of ``fresh``."""
+    region = np.asarray(region, bool)
+    if not region.any():
+        return region
+    n, labels = continuity_components(region, continuity)
+    support = np.bincount(labels[np.asarray(fresh, bool) & region], minlength=n)
+    keep = support >= min_fresh
+    keep[0] = False
+    return keep[labels]
+
+
+def cells_at(uv: np.ndarray, factor: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell ``(row, col)`` of the reduced grid of shape ``(h, w)`` holding each pixel ``uv (N, 2)``,
+    and ``inside (N,)``."""
+    h, w = shape
+    uv = np.asarray(uv, np.float64)
+    finite = np.isfinite(uv).all(axis=1)
+    safe = np.where(finite[:, None], uv, -1.0)
+    c = np.floor((safe[:, 0] + 0.5) / factor).astype(np.int64)
+    r = np.floor((safe[:, 1] + 0.5) / factor).astype(np.int64)
+    inside = finite & (c >= 0) & (c < w) & (r >= 0) & (r < h)
+    return np.clip(r, 0, h - 1), np.clip(c, 0, w - 1), inside
+
+
+def splat(uv: np.ndarray, flags: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """``(h, w)`` bool: the cells holding at least one keypoint ``uv`` with ``flags`` set."""
+    out = np.zeros(shape, bool)
+    flags = np.asarray(flags, bool)
+    if flags.any():
+        r, c, inside = cells_at(np.asarray(uv)[flags], factor, shape)
+        out[r[inside], c[inside]] = True
+    return out

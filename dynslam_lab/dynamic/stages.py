@@ -1,0 +1,668 @@
+"""The screening stages as functions, each adding its columns to one frame's keypoint table.
+
+A stage reads the frame, the context of the SLAM system and what the earlier stages wrote, and
+adds its own column (the keypoints it judges dynamic) and measurements; it changes no other
+stage's column or parameters. :class:`~dynslam_lab.dynamic.screening.Screener` runs the stages
+of its filter in the order of :data:`~dynslam_lab.dynamic.config.STAGES`, then
+:func:`combine` makes the verdict of the columns (the rule is in the module docstring of
+:mod:`.screening`), :func:`restoration_stage` may give some back and :func:`finish` names the reason. What several stages share is computed once per frame, on first use, by
+:class:`FrameWork`: the LK pyramids and the LK pairs with the previous frame, the reference
+pose, the reduced depth grid.
+
+==============  ==================================================  ====================
+stage           column (keypoints judged dynamic)                   paper
+==============  ==================================================  ====================
+semantic        on an a-priori dynamic detection                    all four
+depth_ransac    in the consensus depth set of a person box          Wu et al. 2022
+epipolar        far from the epipolar line (previous frame)         Zhang 2023, Chang 2021, Ge 2024
+multiview       reprojection / depth error (previous frame)         Chang et al. 2021 eq. 2
+multiframe      in space an earlier frame saw through               Bescos et al. 2018 (DynaSLAM)
+flow            in a human-driven flow region                       Chang et al. 2021 eq. 3
+temporal        matched to a map point seen moving                  ours
+regions         in a region grown from the evidence                 ours, after DynaSLAM
+level_rule      Zhang et al.'s high/medium levels or geometry       Zhang et al. 2023
+restoration     given back while the static ratio is low            Ge et al. 2024 eq. 3
+==============  ==================================================  ====================
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..geometry.se3 import se3_inv, transform_points
+from .config import ScreeningConfig
+from .depth_ransac import screen_boxes
+from .epipolar import epipolar_check, fundamental_from_pose, track_lk
+from .flow import flow_regions
+from .geometric_rule import level_rule_verdict
+from .history import FrameHistory, PastFrame, reduce_depth
+from .motion_probability import restore_by_motion_probability
+from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
+from .multiview import multiview_check
+from .reference_pose import ReferencePose, map_reference_pose
+from .regions import cells_at, depth_continuity, grow_regions, splat, supported_regions, surface_segments
+from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
+from .table import depth_at, values_at
+from .temporal import MovingMapPoints, warp_region
+
+__all__ = ["FrameWork", "ScreenerMemory", "STAGE_FUNCTIONS", "combine", "restoration_stage", "finish", "DETECTION_STAGES"]
+
+#: Stages that judge keypoints from detections: they need the detector's output.
+DETECTION_STAGES = ("semantic", "depth_ransac")
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1000.0
+
+
+@dataclass
+class ScreenerMemory:
+    """What a screener keeps between frames: the earlier frames, the map points seen moving and the
+    random stream of depth-RANSAC. ``reset()`` forgets everything."""
+
+    history: FrameHistory
+    moving_points: MovingMapPoints
+    seed: int
+    rng: np.random.Generator = field(init=False)
+    own_pose: np.ndarray | None = None  # T_w_c chained from two-frame rough poses when no SLAM context comes
+
+    def __post_init__(self) -> None:
+        self.rng = np.random.default_rng(self.seed)
+
+    def reset(self) -> None:
+        self.history.clear()
+        self.moving_points.clear()
+        self.rng = np.random.default_rng(self.seed)
+        self.own_pose = None
+
+
+class FrameWork:
+    """One frame's screening in progress: the inputs, the products the stages share (computed once,
+    on first use) and the columns written so far.
+
+    Attributes written by the stages (all ``(N,)`` unless noted)
+    -------------------------------------------------------------
+    stages : stage name -> bool column; values : name -> float column.
+    sem : the semantic stage's :class:`~dynslam_lab.dynamic.semantic.SemanticResult` (a neutral one
+        without that stage); candidate : keypoints on a-priori dynamic detections (left out of F
+        and of the rough pose); prior : the a-priori verdict (narrowed by depth-RANSAC);
+        ran_box : keypoints whose prior depth-RANSAC decided.
+    votes : two-frame geometric verdicts that could run (name, column).
+    region_parts : ``(H, W)`` bool masks of the dynamic region; box_regions : detection -> box depth region.
+    grid_region : ``(h, w)`` bool dynamic cells of the region stage, or None.
+    """
+
+    def __init__(self, frame, uv: np.ndarray, detections, context, config: ScreeningConfig, memory: ScreenerMemory):
+        self.frame = frame
+        self.uv = uv
+        self.n = len(uv)
+        self.detections = detections
+        self.context = context
+        self.config = config
+        self.memory = memory
+        self.gray = frame.gray
+        self.shape = self.gray.shape
+        self.camera = frame.camera
+        self.z = depth_at(frame.depth, uv)
+        self.timings: dict[str, float] = {}
+        self.stages: dict[str, np.ndarray] = {}
+        self.values: dict[str, np.ndarray] = {}
+        n = self.n
+        self.sem = SemanticResult(np.full(n, -1), np.full(n, -1), np.zeros(n), np.zeros(n, np.int8),
+                                  np.zeros(n, bool), np.zeros(0, bool))
+        self.candidate = np.zeros(n, bool)
+        self.prior = np.zeros(n, bool)
+        self.ran_box = np.zeros(n, bool)
+        self.votes: list[tuple[str, np.ndarray]] = []
+        self.geometric = np.zeros(n, bool)
+        self.evidence = np.zeros(n, bool)
+        self.dynamic = np.zeros(n, bool)
+        self.restored = np.zeros(n, bool)
+        self.flow_flag = np.zeros(n, bool)
+        self.region_parts: list[np.ndarray] = []
+        self.box_regions: dict[int, np.ndarray] = {}
+        self.grid_region: np.ndarray | None = None
+        self.fresh_cells: list[np.ndarray] = []  # (h, w) bool fresh evidence for the region stage
+        self.prior_cells: np.ndarray | None = None  # (h, w) bool temporal prior
+        self.static_cells: np.ndarray | None = None  # (h, w) bool confirmed static by the multi-frame test
+        self.vanished_cells: np.ndarray | None = None  # (h, w) bool: an earlier frame's point there is seen through
+        self._cache: dict[str, object] = {}
+        prev = memory.history.last
+        self.prev: PastFrame | None = prev if prev is not None and prev.gray.shape == self.shape else None
+
+    # ------------------------------------------------------------- shared products
+    def _timed(self, key: str, fn):
+        if key not in self._cache:
+            t0 = time.perf_counter()
+            self._cache[key] = fn()
+            self.timings[key] = self.timings.get(key, 0.0) + _ms(t0)
+        return self._cache[key]
+
+    def pairs(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """LK pairs with the previous frame ``(uv_prev (N, 2), matched (N,))``, or None without one:
+        one forward-backward LK pass per frame, shared by every stage that needs pairs (OpenCV's
+        Python binding takes no prebuilt pyramid, so the pass itself is what is shared)."""
+        if self.prev is None:
+            return None
+        return self._timed("lk", lambda: track_lk(self.prev.gray, self.gray, self.uv, self.config.lk))
+
+    @property
+    def uv_undistorted(self) -> np.ndarray:
+        return self._timed("undistort", lambda: self.camera.undistort_points(self.uv))
+
+    def reference(self) -> ReferencePose:
+        """The pose the frame is judged against (:mod:`.reference_pose`): the SLAM map's, else the
+        previous frame's pose moved by the two-frame rough pose."""
+
+        def run():
+            ref = map_reference_pose(self.context, self.uv_undistorted, self.camera, self.config.reference,
+                                     exclude_ids=self.memory.moving_points.array(), surfaces=self.surfaces())
+            if ref.T_c_w is None:
+                ref = self._two_frame_reference()
+            return ref
+
+        return self._timed("reference_pose", run)
+
+    def _two_frame_reference(self) -> ReferencePose:
+        """Without a SLAM system: chain the two-frame rough pose (Chang et al. 2021's "slightly
+        tracking", by PnP-RANSAC on the LK pairs outside the prior and the previous region)."""
+        ref = ReferencePose.none(self.n)
+        prev = self.prev
+        pairs = self.pairs()
+        if prev is None or pairs is None or prev.T_w_c is None:
+            return ref
+        uv_prev, matched = pairs
+        exclude = self.candidate.copy()
+        if prev.region is not None:
+            r, c, inside = cells_at(uv_prev, self.config.multiframe.factor, prev.region.shape)
+            exclude |= inside & prev.region[r, c]
+        z_prev = depth_at(prev.depth, np.nan_to_num(uv_prev, nan=-1.0))
+        mv = multiview_check(self.uv, self.z, uv_prev, z_prev, matched, exclude, self.camera, self.config.multiview)
+        if mv.T_c_p is None:
+            return ref
+        ref.T_c_w = mv.T_c_p @ se3_inv(prev.T_w_c)
+        ref.source = "two_frame"
+        return ref
+
+    @property
+    def reference_if_computed(self) -> ReferencePose | None:
+        """The reference pose when a stage needed it, else None (not computed)."""
+        return self._cache.get("reference_pose")
+
+    def motion_from_previous(self) -> np.ndarray | None:
+        """``T_c_p`` (previous camera -> current camera) of the reference pose, when both are known."""
+        ref = self.reference()
+        if ref.T_c_w is None or self.prev is None or self.prev.T_w_c is None:
+            return None
+        return ref.T_c_w @ self.prev.T_w_c
+
+    @property
+    def grid_camera(self):
+        f = self.config.multiframe.factor
+        return self._timed("grid_camera", lambda: self.camera.scaled(1.0 / f))
+
+    @property
+    def small_depth(self) -> np.ndarray:
+        """The current depth on the reduced grid (:func:`~dynslam_lab.dynamic.history.reduce_depth`)."""
+        return self._timed("reduce_depth", lambda: reduce_depth(self.frame.depth, self.config.multiframe.factor))
+
+    def surfaces(self) -> np.ndarray:
+        """``(N,)`` int label of the surface each keypoint lies on (:func:`~dynslam_lab.dynamic.regions.surface_segments`
+        on the reduced grid; 0 = none, or a keypoint off its cell's depth)."""
+
+        def run():
+            cfg = self.config.regions
+            small = self.small_depth
+            _, labels = surface_segments(small, self.grid_camera, cfg.continuity_rel, cfg.crease_deg)
+            r, c, inside = cells_at(self.uv, self.config.multiframe.factor, small.shape)
+            zc = small[r, c]
+            with np.errstate(invalid="ignore"):
+                on = inside & (zc > 0) & ~(np.abs(self.z - zc) > 2 * cfg.continuity_rel * zc)
+            return np.where(on, labels[r, c], 0)
+
+        return self._timed("surfaces", run)
+
+    def grid_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Camera points of the reduced grid's cells with depth, and their flat indices."""
+        return self._timed("grid_points", lambda: grid_points(self.small_depth, self.grid_camera))
+
+    def references(self) -> list[PastFrame]:
+        """Earlier frames with a pose at the configured offsets (newest first)."""
+        return [f for f in self.memory.history.with_pose(self.config.multiframe.offsets) if f.depth.shape == self.shape]
+
+    def grid_evidence(self) -> dict[str, np.ndarray]:
+        """The reduced-grid products of the geometry stages that ran (for figures): ``depth``, ``fresh``
+        evidence, cells confirmed ``static``, ``vanished`` cells, the temporal ``prior`` and the grown ``region``."""
+        out: dict[str, np.ndarray] = {}
+        if "reduce_depth" in self._cache:
+            out["depth"] = self._cache["reduce_depth"]
+            out["fresh"] = _union(self.fresh_cells, out["depth"].shape)
+        for key, value in (("static", self.static_cells), ("vanished", self.vanished_cells), ("prior", self.prior_cells),
+                           ("region", self.grid_region)):
+            if value is not None:
+                out[key] = value
+        return out
+
+    def past_frame(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> PastFrame:
+        """This frame as the memory keeps it for the next ones."""
+        past = PastFrame(self.frame.index, float(self.frame.timestamp), self.gray, self.frame.depth,
+                         small_depth=self._cache.get("reduce_depth"), region=region, T_w_c=T_w_c)
+        if "grid_points" in self._cache:
+            past.cache["grid_points"] = self._cache["grid_points"][0]
+        return past
+
+
+# ---------------------------------------------------------------------- helpers
+def _cached(past: PastFrame, key: str, fn):
+    if key not in past.cache:
+        past.cache[key] = fn()
+    return past.cache[key]
+
+
+def _window_span(depth: np.ndarray, uv: np.ndarray, radius: int) -> np.ndarray:
+    """``(M,)`` max - min depth over the ``(2 r + 1)^2`` window around each pixel ``uv (M, 2)``; inf where a
+    pixel of the window has no depth or lies off the image (one gather of ``M (2 r + 1)^2`` values)."""
+    h, w = depth.shape
+    d = np.arange(-radius, radius + 1)
+    rows = np.rint(uv[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None]
+    cols = np.rint(uv[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :]
+    inside = ((rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)).all(axis=(1, 2))
+    z = depth[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].reshape(len(uv), -1)
+    span = z.max(axis=1) - z.min(axis=1)
+    return np.where(inside & (z > 0).all(axis=1), span, np.inf)
+
+
+def _past_small_depth(past: PastFrame, factor: int) -> np.ndarray:
+    if past.small_depth is None:
+        past.small_depth = reduce_depth(past.depth, factor)
+    return past.small_depth
+
+
+def _union(masks: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
+    out = np.zeros(shape, bool)
+    for m in masks:
+        out |= m
+    return out
+
+
+def _near_mask(dets, sem: SemanticResult, use_masks: bool, margin: int) -> np.ndarray:
+    """``(H, W)`` bool: within ``margin`` px of an a-priori dynamic detection (mask, else box)."""
+    sel = np.flatnonzero(sem.dynamic_detections)
+    union = (dets.masks[sel] if dets.masks is not None and use_masks else dets.region_masks()[sel]).any(axis=0)
+    k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * margin + 1, 2 * margin + 1))  # a square: separable, fast
+    return cv2.dilate(union.astype(np.uint8), k).astype(bool)
+
+
+def _box_depth_region(depth: np.ndarray, box: np.ndarray, depth_range: tuple[float, float], margin: float = 0.1):
+    """Pixels of ``box`` whose depth lies in the consensus range (+- ``margin`` m): the person."""
+    h, w = depth.shape
+    x1, y1, x2, y2 = np.round(np.asarray(box, float)).astype(int)
+    x1, y1 = max(x1, 0), max(y1, 0)
+    x2, y2 = min(x2, w - 1), min(y2, h - 1)
+    out = np.zeros((h, w), bool)
+    if x2 < x1 or y2 < y1:
+        return out
+    sub = depth[y1 : y2 + 1, x1 : x2 + 1]
+    out[y1 : y2 + 1, x1 : x2 + 1] = (sub >= depth_range[0] - margin) & (sub <= depth_range[1] + margin)
+    return out
+
+
+# ----------------------------------------------------------------------- stages
+def semantic_stage(w: FrameWork) -> None:
+    """Keypoints on a-priori dynamic detections (``SemanticConfig``: masks or boxes, prior set)."""
+    cfg = w.config
+    w.sem = semantic_prior(w.uv, w.detections, cfg.semantic, cfg.priors)
+    w.candidate = w.sem.flagged.copy()
+    w.prior = w.sem.flagged.copy()
+    w.stages["semantic"] = w.sem.flagged.copy()
+
+
+def depth_ransac_stage(w: FrameWork) -> None:
+    """YOLO-SLAM's depth-RANSAC inside each a-priori dynamic box without a mask (all of them with
+    ``depth_ransac_with_masks``): the consensus set is the person, the rest of the box static."""
+    cfg, dets, sem = w.config, w.detections, w.sem
+    dr = np.zeros(w.n, bool)
+    if dets is not None and len(dets):
+        has_mask = dets.masks is not None and cfg.semantic.use_masks
+        run = sem.dynamic_detections & (not has_mask or cfg.depth_ransac_with_masks)
+        for d in np.flatnonzero(run):
+            members = sem.instance == d
+            dyn_d, res = screen_boxes(w.uv[members], w.z[members], dets.boxes[d : d + 1], cfg.depth_ransac,
+                                      w.memory.rng, depth_image=w.frame.depth)
+            dr[np.flatnonzero(members)[dyn_d]] = True
+            if res[0] is not None and res[0].depth_range is not None:
+                w.box_regions[int(d)] = _box_depth_region(w.frame.depth, dets.boxes[d], res[0].depth_range)
+        w.ran_box = run[np.maximum(sem.instance, 0)] & (sem.instance >= 0)
+        w.prior = np.where(w.ran_box, dr, w.prior)
+    w.stages["depth_ransac"] = dr
+
+
+def epipolar_stage(w: FrameWork) -> None:
+    """Distance to the epipolar line in the previous frame (eq. 17). F from the reference pose when
+    there is one, else by RANSAC from the pairs outside the prior (Ge et al. 2024)."""
+    pairs = w.pairs()
+    if pairs is None:
+        return
+    uv_prev, matched = pairs
+    T_c_p = w.motion_from_previous()
+    F = None
+    if T_c_p is not None:
+        # the epipolar constraint needs parallax: a baseline of |t| shifts a point at the median depth by
+        # fx |t| / z pixels; below min_parallax_px (a rotating camera) the test cannot tell, and does not vote
+        z_med = np.nanmedian(w.z) if np.isfinite(w.z).any() else np.inf
+        if w.camera.fx * np.linalg.norm(T_c_p[:3, 3]) / z_med < w.config.epipolar.min_parallax_px:
+            return
+        F = fundamental_from_pose(T_c_p, w.camera.K)
+    ep = epipolar_check(w.uv, uv_prev, matched, w.candidate, w.shape, w.config.epipolar, F=F)
+    w.stages["epipolar"] = ep.dynamic
+    w.values["epipolar_px"] = ep.distance
+    if ep.F is not None:  # a test that could not run does not vote
+        w.votes.append(("epipolar", ep.dynamic))
+
+
+def multiview_stage(w: FrameWork) -> None:
+    """Chang et al.'s eq. 2 against the previous frame: 4 px / 0.1 m. The motion is the reference
+    pose's when there is one, else the rough PnP-RANSAC pose of the pairs outside the prior."""
+    pairs = w.pairs()
+    if pairs is None:
+        return
+    uv_prev, matched = pairs
+    z_prev = depth_at(w.prev.depth, np.nan_to_num(uv_prev, nan=-1.0))
+    mv = multiview_check(w.uv, w.z, uv_prev, z_prev, matched, w.candidate, w.camera, w.config.multiview,
+                         T_c_p=w.motion_from_previous())
+    w._cache["T_c_p"] = mv.T_c_p
+    w.stages["multiview"] = mv.dynamic
+    w.values["reprojection_px"] = mv.reprojection_px
+    w.values["depth_error_m"] = mv.depth_error_m
+    if mv.T_c_p is not None:
+        w.votes.append(("multiview", mv.dynamic))
+
+
+def multiframe_stage(w: FrameWork) -> None:
+    """DynaSLAM's multi-view test against several earlier frames (:mod:`.multiframe`): every keypoint
+    at full resolution, every cell of the reduced grid for the region stage."""
+    cfg = w.config.multiframe
+    ref = w.reference()
+    refs = w.references()
+    n = w.n
+    col = np.zeros(n, bool)
+    w.stages["multiframe"] = col
+    if ref.T_c_w is None or not refs:
+        return
+    T_w_c = se3_inv(ref.T_c_w)
+    # keypoints, full resolution
+    ok = np.isfinite(w.z)
+    X_w = transform_points(T_w_c, w.camera.backproject(w.uv_undistorted[ok], w.z[ok]))
+    kp_refs = [(f.T_w_c, _cached(f, "depth_min", lambda f=f: eroded_depth(f.depth, cfg.min_filter_px))) for f in refs]
+    fs = free_space_test(X_w, kp_refs, w.camera, cfg)
+    col[ok] = fs.violations > 0
+    margin = np.full(n, np.nan)
+    margin[ok] = fs.margin_m
+    w.values["free_space_m"] = margin
+    moved_2d = _older_frame_2d_test(w, refs, X_w, ok)
+    col |= moved_2d
+    # the reduced grid
+    cam = w.grid_camera
+    small = w.small_depth
+    P, keep = w.grid_points()
+    grid_refs = [(f.T_w_c, _cached(f, "small_min", lambda f=f: eroded_depth(_past_small_depth(f, cfg.factor), 1)))
+                 for f in refs]
+    g = free_space_test(transform_points(T_w_c, P), grid_refs, cam, cfg)
+    h, wd = small.shape
+    viol = np.zeros(h * wd, np.int64)
+    viol[keep] = g.violations
+    agree = np.zeros(h * wd, np.int64)
+    agree[keep] = g.agreements
+    occluded = np.full(h * wd, len(refs), np.int64)
+    occluded[keep] = g.occlusions
+    # the backward test against the older frames only (what vanished in one or two frames shows in them too)
+    older = [f for f in refs if w.frame.index - f.index >= 4] or refs[-1:]
+    pts_refs = [(f.T_w_c, _cached(f, "grid_points", lambda f=f: grid_points(_past_small_depth(f, cfg.factor), cam)[0]))
+                for f in older]
+    van = vanished_test(pts_refs, T_w_c, eroded_depth(small, 1), cam, cfg).reshape(-1)
+    need = min(w.config.regions.static_min_agree, len(refs))  # one earlier frame: its agreement must do
+    static = (viol == 0) & (van == 0) & (agree >= need) & (agree >= occluded)
+    static = static.reshape(h, wd) & ~splat(w.uv, moved_2d, cfg.factor, (h, wd))
+    w.static_cells = static
+    w.fresh_cells.append((viol > 0).reshape(h, wd))
+    w.vanished_cells = (van > 0).reshape(h, wd)
+
+
+def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Chang et al.'s eq. 2 against an older frame (:mod:`.multiframe`): ``(N,)`` bool, keypoints found by
+    guided LK more than ``reprojection_px`` from their static prediction where that frame saw them."""
+    cfg = w.config.multiframe
+    n = w.n
+    moved = np.zeros(n, bool)
+    if cfg.lk_offset <= 0 or not refs:
+        return moved
+    target = max(w.frame.index - cfg.lk_offset, -1)
+    past = min(refs, key=lambda f: abs(f.index - target))
+    T_j_w = se3_inv(past.T_w_c)
+    uv_j, z_j = w.camera.project(transform_points(T_j_w, X_w))
+    d_j = _cached(past, "depth_min", lambda: eroded_depth(past.depth, cfg.min_filter_px))
+    zm = depth_at(d_j, np.nan_to_num(uv_j, nan=-1.0))
+    tau = np.maximum(cfg.depth_m, cfg.depth_quadratic * z_j**2)
+    # keypoints whose LK window straddles a depth edge are left out: their depth may belong to the other
+    # layer, and a wrong depth makes a parallax error that grows with the baseline like a motion would.
+    # "Flat": every pixel of the LK window has depth, within tau of the others.
+    span = _window_span(w.frame.depth, w.uv[ok], w.config.lk.win_size // 2)
+    with np.errstate(invalid="ignore"):
+        flat = span <= np.maximum(cfg.depth_m, cfg.depth_quadratic * w.z[ok] ** 2)
+        seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau) & flat
+    idx = np.flatnonzero(ok)[seen]
+    if len(idx) == 0:
+        return moved
+    t0 = time.perf_counter()
+    uv_lk, tracked = track_lk(past.gray, w.gray, w.uv[idx], w.config.lk, guess=uv_j[seen])
+    w.timings["lk_older"] = _ms(t0)
+    err = np.full(n, np.nan)
+    r_old = np.full((n, 2), np.nan)
+    r_old[idx[tracked]] = uv_lk[tracked] - uv_j[seen][tracked]
+    err = np.linalg.norm(r_old, axis=1)
+    w.values["older_reprojection_px"] = err
+    with np.errstate(invalid="ignore"):
+        moved = err > cfg.reprojection_px
+    # a mover keeps its direction: its displacement against the previous frame points the same way and
+    # carries a share of it; LK locked on the wrong repeat of a pattern in the older frame does not
+    pairs, prev = w.pairs(), w.prev
+    if moved.any() and pairs is not None and prev is not None and prev.T_w_c is not None:
+        uv_p_hat, _ = w.camera.project(transform_points(se3_inv(prev.T_w_c), X_w))
+        r_prev = np.full((n, 2), np.nan)
+        r_prev[ok] = pairs[0][ok] - uv_p_hat
+        with np.errstate(invalid="ignore", divide="ignore"):
+            along = np.einsum("ij,ij->i", r_prev, r_old) / err
+            moved &= along > np.maximum(cfg.direction_min_px, err / (4.0 * max(cfg.lk_offset, 1)))
+    return moved
+
+
+def flow_stage(w: FrameWork) -> None:
+    """Chang et al.'s human-driven regions: Farneback flow (camera motion removed with the reference
+    or rough pose) faster than twice the person mask's mean flow, touching the mask."""
+    flag = np.zeros(w.n, bool)
+    dets, sem = w.detections, w.sem
+    if w.prev is not None and dets is not None and len(dets) and sem.dynamic_detections.any():
+        person = _union(list(dets.region_masks()[sem.dynamic_detections]), w.shape)
+        if person.any():
+            T_c_p = w._cache.get("T_c_p")
+            if T_c_p is None:
+                T_c_p = w.motion_from_previous()
+            fr = flow_regions(w.gray, w.prev.gray, person, w.frame.depth, w.camera, T_c_p, w.config.flow)
+            flag = values_at(fr.region, w.uv, outside=False).astype(bool)
+            w.region_parts.append(fr.region)
+            w.values["flow_threshold_px"] = np.full(w.n, fr.threshold_px)
+    w.flow_flag = flag
+    w.stages["flow"] = flag
+
+
+def temporal_stage(w: FrameWork) -> None:
+    """Keypoints matched to map points seen moving; the previous region carried into this frame."""
+    ref = w.reference()
+    # a point seen moving that still misses its map point; a surface moving against the rest; a
+    # keypoint far from its map point that another test also finds moving
+    fresh = np.zeros(w.n, bool)
+    for name in ("epipolar", "multiview", "multiframe"):
+        fresh |= w.stages.get(name, fresh)
+    with np.errstate(invalid="ignore"):
+        still_off = ref.residual_px > w.config.reference.inlier_px
+    col = (ref.known_moving & still_off) | ref.surface_moved | (ref.moved & fresh)
+    w.stages["temporal"] = col
+    prev = w.prev
+    if prev is None or prev.region is None or prev.T_w_c is None or ref.T_c_w is None:
+        return
+    T_p_c = se3_inv(prev.T_w_c) @ se3_inv(ref.T_c_w)
+    prev_small = _past_small_depth(prev, w.config.multiframe.factor)
+    w.prior_cells = warp_region(prev.region, T_p_c, w.small_depth, w.grid_camera, w.config.temporal.dilate_cells,
+                                prev_depth=prev_small, depth_m=w.config.multiframe.depth_m)
+
+
+def regions_stage(w: FrameWork) -> None:
+    """Region growing from the evidence over the depth image (:mod:`.regions`)."""
+    cfg = w.config.regions
+    small = w.small_depth
+    shape = small.shape
+    factor = w.config.multiframe.factor
+    fresh = _union(w.fresh_cells, shape)
+    if cfg.seed_keypoints:
+        kp = _geometric(w, set(w.stages))
+        for name in ("multiframe", "temporal"):
+            if name in w.stages:
+                kp |= w.stages[name]
+        fresh |= splat(w.uv, kp, factor, shape)
+    prior = w.prior_cells if w.prior_cells is not None else np.zeros(shape, bool)
+    vanished = w.vanished_cells if w.vanished_cells is not None else np.zeros(shape, bool)
+    # a mover carried by the prior whose earlier surface this frame sees through (it recedes) stays supported
+    support = fresh | (vanished & prior & False)
+    allowed = small > 0
+    if w.static_cells is not None:
+        allowed &= ~w.static_cells | prior
+    allowed &= ~(vanished & ~prior)  # background a mover has just uncovered
+    continuity = depth_continuity(small, cfg.continuity_rel)
+    grown = grow_regions(support, allowed | support, continuity, cfg.steps)
+    region = supported_regions(grown, support, cfg.min_fresh_cells, continuity)
+    w.grid_region = region
+    r, c, inside = cells_at(w.uv, factor, shape)
+    # a keypoint takes its cell's verdict when it lies on the cell's surface (a keypoint on the wall
+    # beside a person shares a cell with the person's edge but not its depth)
+    zc = small[r, c]
+    with np.errstate(invalid="ignore"):
+        same = (zc > 0) & ~(np.abs(w.z - zc) > 2 * cfg.continuity_rel * zc)
+    w.stages["regions"] = inside & region[r, c] & same
+    if region.any():
+        H, W = w.shape
+        full = cv2.resize(region.astype(np.uint8), (shape[1] * factor, shape[0] * factor), interpolation=cv2.INTER_NEAREST)
+        out = np.zeros((H, W), bool)
+        hh, ww = min(H, full.shape[0]), min(W, full.shape[1])
+        out[:hh, :ww] = full[:hh, :ww].astype(bool)
+        w.region_parts.append(out)
+
+
+#: Evidence stage name -> function, in run order (``config.STAGES``). ``level_rule`` changes how
+#: :func:`combine` weighs the columns and ``restoration`` (:func:`restoration_stage`) runs after it.
+STAGE_FUNCTIONS = {
+    "semantic": semantic_stage,
+    "depth_ransac": depth_ransac_stage,
+    "epipolar": epipolar_stage,
+    "multiview": multiview_stage,
+    "multiframe": multiframe_stage,
+    "flow": flow_stage,
+    "temporal": temporal_stage,
+    "regions": regions_stage,
+}
+
+
+# ---------------------------------------------------------------------- verdict
+def _geometric(w: FrameWork, on: set[str]) -> np.ndarray:
+    """The two-frame vote (epipolar, multi-view) with the margin around a-priori dynamic masks."""
+    cfg = w.config
+    if not w.votes:
+        return np.zeros(w.n, bool)
+    vote = cfg.geometric_vote
+    if vote == "auto":  # "any" only when the two-frame tests are the only geometric signal
+        vote = "both" if on & {"semantic", "multiframe", "regions"} else "any"
+    cols = [c for _, c in w.votes]
+    if vote == "both" and len(cols) < 2:
+        return np.zeros(w.n, bool)  # "both" needs both tests: one alone (the other could not run) does not decide
+    geometric = np.logical_and.reduce(cols) if vote == "both" else np.logical_or.reduce(cols)
+    dets = w.detections
+    if "semantic" in on and cfg.geometry_mask_margin_px > 0 and dets is not None and w.sem.dynamic_detections.any():
+        near = _near_mask(dets, w.sem, cfg.semantic.use_masks, cfg.geometry_mask_margin_px)
+        geometric &= ~values_at(near, w.uv, outside=False).astype(bool)
+    return geometric
+
+
+def combine(w: FrameWork, on: set[str]) -> None:
+    """The verdict from the columns (rule: :mod:`.screening`); with ``level_rule`` Zhang et al.'s
+    levels replace the prior. Sets ``w.dynamic``, ``w.evidence`` (geometric and flow evidence of
+    motion) and ``w.prior`` (what the prior alone decided)."""
+    geometric = _geometric(w, on)
+    w.geometric = geometric
+    evidence = geometric | w.flow_flag
+    for name in ("multiframe", "temporal", "regions"):
+        if name in w.stages:
+            evidence |= w.stages[name]
+    w.evidence = evidence
+    if "level_rule" in on:
+        level_dyn = w.sem.level >= LEVEL_CODES["medium"]
+        level_dyn &= ~(w.ran_box & ~w.prior)  # depth-RANSAC background inside a box: judged by geometry
+        lvl = np.where(level_dyn, w.sem.level, np.minimum(w.sem.level, LEVEL_CODES["low"]))
+        w.dynamic = level_rule_verdict(lvl, evidence)
+        w.stages["level_rule"] = w.dynamic.copy()
+        w.prior = w.prior & level_dyn
+    else:
+        w.dynamic = w.prior | evidence
+
+
+def restoration_stage(w: FrameWork) -> None:
+    """ASG-SLAM's restoration (Ge et al. 2024 eq. 3): prior-only keypoints come back, least probable
+    movers first, while the static ratio is below ``delta_1``; evidence of motion vetoes."""
+    rr = restore_by_motion_probability(w.dynamic, w.prior, w.sem.motion_prob, w.evidence, w.config.restoration)
+    w.restored = rr.restored
+    w.dynamic = w.dynamic & ~rr.restored
+    w.stages["restoration"] = rr.restored
+
+
+def finish(w: FrameWork, on: set[str], order: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The ``reason`` column (the earliest stage in ``order`` that made a keypoint dynamic) and the
+    region mask (dynamic detections still dynamic, their box-depth regions, flow and grown regions)."""
+    n = w.n
+    dynamic = w.dynamic
+    reason = np.full(n, "", dtype=object)
+    decided = {
+        "semantic": w.prior & ~w.ran_box,
+        "depth_ransac": w.prior & w.ran_box,
+        "epipolar": w.stages.get("epipolar", np.zeros(n, bool)) & w.geometric,
+        "multiview": w.stages.get("multiview", np.zeros(n, bool)) & w.geometric,
+    }
+    for name in ("multiframe", "flow", "temporal", "regions"):
+        if name in w.stages:
+            decided[name] = w.stages[name]
+    for name in reversed(order):  # the earliest stage wins: set last
+        if name in decided:
+            reason[decided[name] & dynamic] = name
+    if "level_rule" in w.stages:
+        reason[dynamic & (reason == "")] = "level_rule"
+    reason[w.restored] = "restored"
+    region_parts = list(w.region_parts)
+    dets = w.detections
+    if dets is not None and len(dets) and "semantic" in on:
+        keep_det = np.zeros(len(dets), bool)
+        keep_det[np.unique(w.sem.instance[dynamic & w.prior])] = True
+        keep_det &= w.sem.dynamic_detections
+        for d in np.flatnonzero(keep_det):
+            if int(d) in w.box_regions:
+                region_parts.append(w.box_regions[int(d)])
+            elif dets.masks is not None and w.config.semantic.use_masks:
+                region_parts.append(dets.masks[d])
+            else:
+                region_parts.append(dets.region_masks()[d])
+    region_mask = None
+    if region_parts:
+        region_mask = _union(region_parts, w.shape)
+    elif "semantic" in on:
+        region_mask = np.zeros(w.shape, bool)
+    return reason, region_mask

@@ -1,0 +1,354 @@
+"""The robustness benchmark: every filter on scenes it was not tuned on, worst case beside typical.
+
+The demo's numbers come from one kind of scene (two people about 1 m away, found by the oracle
+detector). This module runs the filters over many sequences, each also rendered without its
+movers (the same camera path: the reference the filters should approach), and reports per
+sequence and filter (``docs/robustness.md``):
+
+* ATE RMSE (m, SE(3) alignment), its ratio to ``none`` on the same sequence and to the reference
+  without movers; frames lost; loops accepted (a path that does not revisit a place must accept
+  none);
+* per-keypoint precision and recall of the dynamic verdict against the renderer's truth
+  (:class:`~dynslam_lab.experiments.scoring.KeypointScorer`);
+* milliseconds per frame (median of the whole system and of screening);
+* the movers' image coverage (mean and maximum over the frames, from the renderer's statistics).
+
+The filters (:data:`FILTERS`): ``none``; ``geometry`` without a detector; ``full`` with the oracle
+detector (which names people only, never a box or a cart); ``full`` with an ONNX detector when a
+model is given; ``oracle`` (perfect masks of every moving instance). Runs are built by
+:func:`dynslam_lab.pipeline.build_pipeline` and run by :func:`dynslam_lab.runs.run_sequence`;
+:func:`run_one` is the one place that does it (``dynslam ablation`` uses it too). Each finished run
+leaves ``row.json`` in its folder, so an interrupted benchmark resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..config import Config, config_to_dict
+from ..datasets.tum import TumSequence
+from ..pipeline import build_pipeline
+from ..runs import run_sequence
+from ..runs.layout import atomic_write
+from .scoring import KeypointScorer
+
+__all__ = ["SequenceSpec", "FILTERS", "REFERENCE", "run_one", "run_robustness", "summarise", "robustness_markdown",
+           "robustness_plot", "TARGETS", "synthetic_specs"]
+
+#: Filter label -> (``--filters``, ``--detector``); ``full+onnx`` is added when a model is given.
+FILTERS: dict[str, tuple[str, str]] = {
+    "none": ("none", "none"),
+    "geometry": ("geometry", "none"),
+    "full+oracle": ("full", "oracle"),
+    "oracle masks": ("oracle", "none"),
+}
+#: Label of the run on the sequence without movers (filter ``none``).
+REFERENCE = "no movers"
+
+#: The targets of issue 16, as (filter label, column, bound, description).
+TARGETS = (
+    ("geometry", "ate_rmse_m", 0.05, "geometry without a detector: ATE <= 0.05 m"),
+    ("geometry", "ate_vs_none", 0.2, "geometry: ATE <= 20% of none"),
+    ("geometry", "precision", 0.9, "geometry: keypoint precision >= 0.9"),
+    ("geometry", "recall", 0.9, "geometry: keypoint recall >= 0.9"),
+    ("oracle masks", "ate_vs_reference", 2.0, "perfect masks: ATE <= 2x the path without movers"),
+    ("full+oracle", "ate_vs_oracle", 1.5, "full with the oracle detector: ATE <= 1.5x perfect masks"),
+)
+
+
+@dataclass(frozen=True)
+class SequenceSpec:
+    """A sequence of the benchmark: a name, its folder, and the folder of the same camera path
+    without movers (None when there is none)."""
+
+    name: str
+    root: Path
+    reference: Path | None = None
+
+
+def synthetic_specs(names, n_frames: int | None = None, seed: int = 0) -> list[SequenceSpec]:
+    """Rendered (cached) synthetic sequences with their references without movers.
+
+    ``names``: stress scenes (:data:`~dynslam_lab.datasets.stress.STRESS_SUITE`; reference: the same
+    scene ``without_movers()``) or office presets (reference: ``static_MOTION``, the office without
+    people on the same camera path, when the renderer has it).
+    """
+    from dataclasses import replace
+
+    from ..datasets import stress
+    from ..datasets.synthetic import PRESETS, synthetic_sequence
+
+    suite = stress.STRESS_SUITE
+    out = []
+    for name in names:
+        if name in suite:
+            p = suite[name] if n_frames is None else replace(suite[name], n_frames=int(n_frames))
+            out.append(SequenceSpec(name, synthetic_sequence(p), synthetic_sequence(p.without_movers())))
+        elif name in PRESETS:
+            ref = f"static_{PRESETS[name].motion}"
+            ref_root = synthetic_sequence(ref, n_frames=n_frames, seed=seed) if ref in PRESETS and ref != name else None
+            out.append(SequenceSpec(name, synthetic_sequence(name, n_frames=n_frames, seed=seed), ref_root))
+        else:
+            raise ValueError(f"unknown synthetic sequence {name!r}; stress scenes: {list(suite)}, office presets: {list(PRESETS)}")
+    return out
+
+
+def _coverage(root: Path) -> tuple[float, float]:
+    """Mean and maximum image fraction covered by moving instances (``synthetic.json`` statistics)."""
+    path = Path(root) / "synthetic.json"
+    try:
+        stats = json.loads(path.read_text()).get("stats") or {}
+    except (OSError, ValueError):
+        return float("nan"), float("nan")
+    return float(stats.get("moving_cover_mean", float("nan"))), float(stats.get("moving_cover_max", float("nan")))
+
+
+def _write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda tmp: tmp.write_text(text))
+
+
+def _finite(v) -> float:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+    return v if math.isfinite(v) else float("nan")
+
+
+def run_one(seq: TumSequence, run_dir: str | Path, config: Config, filters: str, detector: str = "none",
+            loop_closing: bool = True, max_frames: int | None = None, progress: bool = False) -> dict:
+    """One SLAM run, scored: ATE, lost frames, loops, keypoint precision/recall, ms per frame.
+
+    Returns a dict with ``ate_rmse_m, tracked, lost, frames, keyframes, loops, precision, recall,
+    tp, fp, fn, ms_per_frame, screen_ms, run_dir`` (nan where not measured: no ground truth, no
+    truth masks, no screening).
+    """
+    system = build_pipeline(config, seq.camera, detector=detector, filters=filters, loop_closing=loop_closing)
+    scorer = KeypointScorer()
+    summary = run_sequence(seq, run_dir, system, max_frames=max_frames, progress=progress, on_frame=scorer)
+    ate = (summary.get("ate") or {}).get("rmse")
+    screen = np.asarray(scorer.screen_ms, float)
+    total = (summary.get("timing_median_ms") or {}).get("total")
+    has_truth = bool(scorer.per_frame)
+    s = scorer.score
+    return {
+        "ate_rmse_m": _finite(ate),
+        "tracked": int(summary.get("tracked", 0)),
+        "lost": int(summary.get("lost", 0)),
+        "frames": int(summary.get("frames", 0)),
+        "keyframes": int(summary.get("keyframes", 0)),
+        "loops": int(summary.get("loops", 0)),
+        "precision": _finite(s.precision) if has_truth else float("nan"),
+        "recall": _finite(s.recall) if has_truth else float("nan"),
+        "tp": s.tp, "fp": s.fp, "fn": s.fn,
+        "ms_per_frame": _finite(total),
+        "screen_ms": float(np.nanmedian(screen)) if filters != "none" and np.isfinite(screen).any() else float("nan"),
+        "run_dir": str(run_dir),
+    }
+
+
+def _filters(onnx_model: str | Path | None, only=None) -> dict[str, tuple[str, str]]:
+    out = dict(FILTERS)
+    if onnx_model is not None:
+        model = Path(onnx_model)
+        if not model.is_file():
+            raise FileNotFoundError(f"{model}: ONNX model not found (--model)")
+        out = {**{k: v for k, v in out.items() if k != "oracle masks"}, "full+onnx": ("full", f"onnx:{model}"),
+               "oracle masks": FILTERS["oracle masks"]}
+    if only is not None:
+        unknown = [f for f in only if f not in out and f != REFERENCE]
+        if unknown:
+            raise ValueError(f"robustness: unknown filters {unknown}; choose from {list(out) + [REFERENCE]}")
+        out = {k: v for k, v in out.items() if k in only}
+    return out
+
+
+def run_robustness(sequences, outdir: str | Path, config: Config | None = None, onnx_model: str | Path | None = None,
+                   filters=None, max_frames: int | None = None, loop_closing: bool = True, progress: bool = False,
+                   resume: bool = True, on_run=None) -> pd.DataFrame:
+    """Run every filter (and the reference without movers) on every sequence; write the tables.
+
+    Parameters
+    ----------
+    sequences : :class:`SequenceSpec` list.
+    outdir : gets ``robustness.csv``, ``robustness.md``, ``robustness.png`` and one run folder per
+        (sequence, filter).
+    config : root configuration of every run (defaults when None).
+    onnx_model : an ONNX detector for the ``full+onnx`` filter (skipped when None).
+    filters : labels to run (default all of :data:`FILTERS`, ``full+onnx`` and :data:`REFERENCE`).
+    max_frames : frames per run (None = all).
+    loop_closing : run the loop closer (its accepted loops are counted).
+    resume : reuse the ``row.json`` of runs already finished with the same configuration.
+    progress : a progress bar per run.
+    on_run : called as ``on_run(row)`` after each run (a dict of the row), e.g. to print a line.
+
+    Returns
+    -------
+    DataFrame, one row per run: ``sequence, filter, detector, coverage_mean, coverage_max`` and the
+    columns of :func:`run_one`, then ``ate_vs_none``, ``ate_vs_reference``, ``ate_vs_oracle``.
+    """
+    config = config if config is not None else Config()
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    specs = _filters(onnx_model, filters)
+    want_reference = filters is None or REFERENCE in filters
+    fingerprint = json.dumps(config_to_dict(config), sort_keys=True, default=str)
+    rows = []
+    for spec in sequences:
+        cov_mean, cov_max = _coverage(spec.root)
+        jobs = [(label, spec.root, f, d) for label, (f, d) in specs.items()]
+        if want_reference and spec.reference is not None:
+            jobs.append((REFERENCE, spec.reference, "none", "none"))
+        for label, root, filt, det in jobs:
+            run_dir = outdir / spec.name / label.replace(" ", "_").replace("+", "_")
+            key = {"sequence": str(root), "filters": filt, "detector": det, "max_frames": max_frames,
+                   "loop_closing": loop_closing, "config": fingerprint}
+            row_path = run_dir / "row.json"
+            row = None
+            if resume and row_path.is_file():
+                try:
+                    saved = json.loads(row_path.read_text())
+                    row = saved["row"] if saved.get("key") == key else None
+                except (OSError, ValueError, KeyError):
+                    row = None
+            if row is None:
+                row = run_one(TumSequence(root), run_dir, config, filt, det, loop_closing, max_frames, progress)
+                _write_text(row_path, json.dumps({"key": key, "row": row}, indent=1))
+            rows.append({"sequence": spec.name, "filter": label, "detector": det, "coverage_mean": cov_mean,
+                         "coverage_max": cov_max, **row})
+            if on_run is not None:
+                on_run(rows[-1])
+    df = _derived(pd.DataFrame(rows))
+    _write_text(outdir / "robustness.csv", df.to_csv(index=False))
+    _write_text(outdir / "robustness.md", robustness_markdown(df))
+    if len(df):
+        robustness_plot(df, outdir / "robustness.png")
+    return df
+
+
+def _derived(df: pd.DataFrame) -> pd.DataFrame:
+    """Ratios of each run's ATE to ``none``, to the reference without movers and to perfect masks."""
+    if len(df) == 0:
+        return df
+    by = {(s, f): a for s, f, a in zip(df["sequence"], df["filter"], df["ate_rmse_m"])}
+
+    def ratio(s, a, other):
+        b = by.get((s, other), float("nan"))
+        return a / b if b and math.isfinite(b) and b > 0 and math.isfinite(a) else float("nan")
+
+    df = df.copy()
+    df["ate_vs_none"] = [ratio(s, a, "none") for s, a in zip(df["sequence"], df["ate_rmse_m"])]
+    df["ate_vs_reference"] = [ratio(s, a, REFERENCE) for s, a in zip(df["sequence"], df["ate_rmse_m"])]
+    df["ate_vs_oracle"] = [ratio(s, a, "oracle masks") for s, a in zip(df["sequence"], df["ate_rmse_m"])]
+    return df
+
+
+def summarise(df: pd.DataFrame) -> pd.DataFrame:
+    """Per filter over the sequences: the worst and the typical (median) value of each measure.
+
+    Worst is the largest ATE, ratio, lost frames, loops and time, and the smallest precision and recall.
+    """
+    cols_hi = ["ate_rmse_m", "ate_vs_none", "ate_vs_reference", "ate_vs_oracle", "lost", "loops", "ms_per_frame", "screen_ms"]
+    cols_lo = ["precision", "recall"]
+    out = []
+    for label, g in df.groupby("filter", sort=False):
+        row = {"filter": label, "sequences": len(g)}
+        for c in cols_hi:
+            v = pd.to_numeric(g[c], errors="coerce")
+            row[f"{c} worst"] = float(v.max()) if v.notna().any() else float("nan")
+            row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
+        for c in cols_lo:
+            v = pd.to_numeric(g[c], errors="coerce")
+            row[f"{c} worst"] = float(v.min()) if v.notna().any() else float("nan")
+            row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def _fmt(v, digits: int = 3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, (float, np.floating)):
+        return "-" if not math.isfinite(float(v)) else f"{float(v):.{digits}f}"
+    return str(v)
+
+
+def robustness_markdown(df: pd.DataFrame) -> str:
+    """The benchmark as markdown: the targets, worst and typical per filter, then every run."""
+    if len(df) == 0:
+        return "# Robustness\n\n(no runs)\n"
+    lines = ["# Robustness of the dynamic-feature filters", ""]
+    summ = summarise(df)
+    lines += ["Worst / typical (median) over the sequences. ATE in metres; ratios to `none`, to the same path "
+              "without movers, to perfect masks; P / R = keypoint precision / recall.", ""]
+    head = ["filter", "n", "ATE", "ATE/none", "ATE/no movers", "ATE/oracle", "P", "R", "lost", "loops", "ms/frame", "screen ms"]
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|---" * len(head) + "|")
+    for _, r in summ.iterrows():
+        def wt(c, d=3):
+            return f"{_fmt(r[f'{c} worst'], d)} / {_fmt(r[f'{c} typical'], d)}"
+        lines.append("| " + " | ".join([str(r["filter"]), str(r["sequences"]), wt("ate_rmse_m", 4), wt("ate_vs_none", 2),
+                                        wt("ate_vs_reference", 2), wt("ate_vs_oracle", 2), wt("precision"), wt("recall"),
+                                        wt("lost", 0), wt("loops", 0), wt("ms_per_frame", 0), wt("screen_ms", 1)]) + " |")
+    lines += ["", "## Targets (issue 16)", ""]
+    for label, col, bound, text in TARGETS:
+        g = df[df["filter"] == label]
+        v = pd.to_numeric(g[col], errors="coerce").dropna() if len(g) else pd.Series(dtype=float)
+        if len(v) == 0:
+            lines.append(f"- {text}: not measured")
+            continue
+        worse = v > bound if col not in ("precision", "recall") else v < bound
+        fails = [s for s, bad in zip(g.loc[v.index, "sequence"], worse) if bad]
+        lines.append(f"- {text}: {'met' if not fails else 'missed'} on {len(v) - len(fails)} of {len(v)}"
+                     + (f" (missed: {', '.join(fails)})" if fails else ""))
+    lines += ["", "## Every run", ""]
+    cols = ["sequence", "filter", "coverage_mean", "coverage_max", "ate_rmse_m", "ate_vs_none", "ate_vs_reference",
+            "precision", "recall", "lost", "loops", "keyframes", "ms_per_frame", "screen_ms"]
+    lines.append("| " + " | ".join(cols) + " |")
+    lines.append("|---" * len(cols) + "|")
+    digits = {"ate_rmse_m": 4, "ms_per_frame": 0, "screen_ms": 1, "coverage_mean": 2, "coverage_max": 2,
+              "ate_vs_none": 2, "ate_vs_reference": 2}
+    for _, r in df.iterrows():
+        lines.append("| " + " | ".join(_fmt(r[c], digits.get(c, 3)) for c in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
+    """ATE per sequence and filter (log scale; the reference without movers as a line), written to ``path``."""
+    import matplotlib  # optional heavy dependency: only the plot needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    seqs = list(dict.fromkeys(df["sequence"]))
+    labels = [f for f in dict.fromkeys(df["filter"]) if f != REFERENCE]
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(seqs) + 2), 4.2))
+    width = 0.8 / max(len(labels), 1)
+    x = np.arange(len(seqs))
+    for k, label in enumerate(labels):
+        g = df[df["filter"] == label].set_index("sequence")
+        vals = [float(g.loc[s, "ate_rmse_m"]) if s in g.index else np.nan for s in seqs]
+        ax.bar(x + (k - (len(labels) - 1) / 2) * width, vals, width, label=label)
+    ref = df[df["filter"] == REFERENCE].set_index("sequence")
+    for i, s in enumerate(seqs):
+        if s in ref.index:
+            ax.hlines(float(ref.loc[s, "ate_rmse_m"]), i - 0.45, i + 0.45, colors="k", linestyles="--", linewidth=1)
+    ax.axhline(0.05, color="r", linewidth=0.8, linestyle=":", label="0.05 m target")
+    ax.set_yscale("log")
+    ax.set_xticks(x)
+    ax.set_xticklabels(seqs, rotation=30, ha="right")
+    ax.set_ylabel("ATE RMSE (m), log scale")
+    ax.set_title("ATE per sequence and filter (dashed: same path without movers)")
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png"))
+    plt.close(fig)
+    return path

@@ -1,0 +1,127 @@
+"""The multi-frame free-space test (DynaSLAM's multi-view test, Bescos et al. 2018) and the 2-D test
+against an older frame, on hand-built scenes with known geometry."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from dynslam_lab.dynamic.epipolar import LkConfig, track_lk
+from dynslam_lab.dynamic.multiframe import (
+    MultiFrameConfig,
+    eroded_depth,
+    free_space_test,
+    grid_points,
+    vanished_test,
+)
+from dynslam_lab.geometry.se3 import make_pose, se3_inv, transform_points
+from tests.dynamic.scenes import CAM, texture
+
+CFG = MultiFrameConfig()
+
+
+def _wall(z: float = 3.0) -> np.ndarray:
+    return np.full((CAM.height, CAM.width), z, np.float32)
+
+
+def test_points_on_a_static_wall_agree_with_every_earlier_frame():
+    T_w_j = [make_pose(None, np.array([0.02 * k, -0.01 * k, 0.0])) for k in range(1, 4)]
+    refs = [(T, _wall()) for T in T_w_j]
+    # points of the same wall seen from the current camera at the origin
+    uv = np.column_stack([np.linspace(100, 540, 50), np.linspace(80, 400, 50)])
+    X_w = CAM.backproject(uv, np.full(50, 3.0))
+    fs = free_space_test(X_w, refs, CAM, CFG)
+    assert fs.violations.sum() == 0 and fs.occlusions.sum() == 0
+    assert np.all(fs.agreements == 3) and np.all(fs.tested == 3)
+    assert np.nanmax(fs.margin_m) < 0
+
+
+def test_a_point_where_an_earlier_frame_saw_through_is_a_violation_and_one_behind_is_occluded():
+    refs = [(np.eye(4), _wall(3.0))]
+    uv = np.array([[320.0, 240.0], [100.0, 100.0], [500.0, 300.0]])
+    z = np.array([2.0, 3.05, 3.6])  # 1 m in front of the wall / on it / 0.6 m behind it
+    fs = free_space_test(CAM.backproject(uv, z), refs, CAM, CFG)
+    assert fs.violations.tolist() == [1, 0, 0]
+    assert fs.agreements.tolist() == [0, 1, 0]
+    assert fs.occlusions.tolist() == [0, 0, 1]
+    assert fs.margin_m[0] == pytest.approx(1.0 - 0.1, abs=1e-4)  # z_j - z_p - tau, tau = 0.1 m at 2 m
+
+
+def test_the_margin_grows_with_depth_squared_and_holes_give_no_verdict():
+    d = _wall(6.0)
+    d[:, :320] = 0  # the left half: no reading
+    refs = [(np.eye(4), d)]
+    uv = np.array([[500.0, 240.0], [500.0, 200.0], [100.0, 240.0]])
+    z = np.array([5.75, 5.5, 2.0])
+    fs = free_space_test(CAM.backproject(uv, z), refs, CAM, CFG)
+    # tau at 5.75 m is 0.01 * 5.75^2 = 0.33 m: 0.25 m in front agrees; 0.5 m in front does not
+    assert fs.violations.tolist() == [0, 1, 0]
+    assert fs.tested.tolist() == [1, 1, 0]
+
+
+def test_erosion_keeps_a_point_beside_a_depth_edge_from_faking_a_violation():
+    d = _wall(4.0)
+    d[:, :300] = 1.5  # a near object left of x = 300
+    # a point of the near object, predicted 1 px off the edge onto the far side (a small pose error)
+    X_w = CAM.backproject(np.array([[300.6, 240.0]]), np.array([1.5]))
+    assert free_space_test(X_w, [(np.eye(4), d)], CAM, CFG).violations[0] == 1
+    assert free_space_test(X_w, [(np.eye(4), eroded_depth(d, 2))], CAM, CFG).violations[0] == 0
+
+
+def test_vanished_marks_where_an_earlier_point_is_now_seen_through():
+    small = CAM.scaled(0.25)
+    before = np.full((small.height, small.width), 4.0, np.float32)
+    before[40:80, 60:100] = 2.0  # an object 2 m away, gone now
+    now = np.full_like(before, 4.0)
+    P, _ = grid_points(before, small)
+    van = vanished_test([(np.eye(4), P)], np.eye(4), eroded_depth(now, 1), small, CFG)
+    assert van[45:75, 65:95].all()
+    assert van.sum() == pytest.approx(40 * 40, rel=0.1)
+    # an object still there: nothing vanished
+    assert vanished_test([(np.eye(4), P)], np.eye(4), eroded_depth(before, 1), small, CFG).sum() == 0
+
+
+def test_grid_points_back_project_the_cells_with_depth():
+    small = CAM.scaled(0.25)
+    d = np.zeros((small.height, small.width), np.float32)
+    d[10, 20] = 2.0
+    d[30, 5] = 3.0
+    P, keep = grid_points(d, small)
+    assert keep.tolist() == [10 * small.width + 20, 30 * small.width + 5]
+    uv, z = small.project(P.astype(float))
+    assert np.allclose(uv, [[20, 10], [5, 30]], atol=1e-4) and np.allclose(z, [2, 3])
+
+
+def test_lk_started_at_the_prediction_finds_static_points_there_and_a_moved_patch_away_from_it():
+    tex = texture(CAM.height, CAM.width, seed=5)
+    moved = tex.copy()
+    moved[200:280, 300:380] = np.roll(tex[200:280, 300:380], 6, axis=1)  # a patch that moved 6 px right
+    M = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, -2.0]])
+    earlier = cv2.warpAffine(tex, M, (CAM.width, CAM.height), borderMode=cv2.BORDER_REFLECT)  # camera shift (3, -2) px
+    # the current image is `moved`; the earlier frame saw everything at +(3, -2), except the patch's content
+    uv = np.array([[150.0, 120.0], [450.0, 380.0], [340.0, 240.0]])
+    guess = uv + [3.0, -2.0]  # the static prediction
+    q, ok = track_lk(earlier, moved, uv, LkConfig(), guess=guess)
+    assert ok[:2].all()
+    assert np.linalg.norm(q[:2] - guess[:2], axis=1).max() < 0.2
+    assert ok[2] and np.linalg.norm(q[2] - guess[2]) == pytest.approx(6.0, abs=0.5)
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="offsets"):
+        MultiFrameConfig(offsets=())
+    with pytest.raises(ValueError, match="lk_offset"):
+        MultiFrameConfig(lk_offset=-1)
+    assert MultiFrameConfig(offsets=(1, 3, 9)).history_length == 9
+
+
+def test_a_moving_camera_and_an_earlier_pose_give_the_same_verdicts_as_a_moved_point():
+    """Free space judged in the earlier camera: the test depends on the poses, not on the frame."""
+    T_w_j = make_pose(None, np.array([0.3, 0.0, 0.2]))
+    d_j = _wall(3.0)  # the earlier camera saw a wall 3 m ahead of it
+    X_j = CAM.backproject(np.array([[320.0, 240.0], [200.0, 200.0]]), np.array([2.0, 3.0]))
+    X_w = transform_points(T_w_j, X_j)
+    fs = free_space_test(X_w, [(T_w_j, d_j)], CAM, CFG)
+    assert fs.violations.tolist() == [1, 0]
+    assert np.allclose(transform_points(se3_inv(T_w_j), X_w), X_j)

@@ -1,0 +1,134 @@
+"""The reference pose on the map (DynaSLAM's low-cost tracking): robust refinement from the prediction,
+map points seen moved, surfaces that move against the rest."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from dynslam_lab.dynamic.context import ScreeningContext
+from dynslam_lab.dynamic.reference_pose import (
+    ReferencePoseConfig,
+    inconsistent_surfaces,
+    map_reference_pose,
+    refine_pose,
+)
+from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp, transform_points
+from tests.dynamic.scenes import CAM
+
+
+def _pose_error(T_a, T_b):
+    D = T_a @ se3_inv(T_b)
+    return np.linalg.norm(D[:3, 3]), np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+
+
+def _map(n=600, seed=1):
+    rng = np.random.default_rng(seed)
+    uv = np.column_stack([rng.uniform(10, 630, n), rng.uniform(10, 470, n)])
+    X_w = CAM.backproject(uv, rng.uniform(1.0, 5.0, n))
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    return X_w, desc
+
+
+T_TRUE = make_pose(so3_exp(np.array([0.01, -0.02, 0.005])), np.array([0.04, -0.01, 0.03]))
+
+
+def test_refinement_recovers_the_pose_like_opencv_and_ignores_a_moved_third():
+    X_w, _ = _map()
+    uv, _ = CAM.project(transform_points(T_TRUE, X_w))
+    uv = uv + np.random.default_rng(2).normal(0, 0.3, uv.shape)
+    uv[:200] += np.array([5.0, 2.0])  # a third of the points moved by ~5 px
+    T0 = make_pose(so3_exp(np.array([0.002, 0.0, -0.002])), np.array([0.005, 0.0, 0.0])) @ T_TRUE  # the prediction
+    T = refine_pose(T0, X_w, uv, CAM.K)
+    t_err, r_err = _pose_error(T, T_TRUE)
+    assert t_err < 2e-3 and r_err < 0.05
+    # independent reference: OpenCV's solvePnP on the unmoved points alone
+    ok, rvec, tvec = cv2.solvePnP(X_w[200:], uv[200:], CAM.K, None, flags=cv2.SOLVEPNP_ITERATIVE)
+    R, _ = cv2.Rodrigues(rvec)
+    t_cv, r_cv = _pose_error(T, make_pose(R, tvec.ravel()))
+    assert t_cv < 2e-3 and r_cv < 0.05
+    # a plain least-squares fit (one wide scale) is pulled by the moved third
+    T_ls = refine_pose(T0, X_w, uv, CAM.K, scales_px=(1e6,), iterations=5)
+    assert _pose_error(T_ls, T_TRUE)[0] > 3 * t_err
+
+
+def test_sigma_weights_down_coarse_keypoints():
+    X_w, _ = _map()
+    uv, _ = CAM.project(transform_points(T_TRUE, X_w))
+    rng = np.random.default_rng(3)
+    sigma = np.where(np.arange(len(uv)) % 2 == 0, 1.0, 1.2**5)
+    uv = uv + rng.normal(0, 1.0, uv.shape) * sigma[:, None]
+    T_w = refine_pose(T_TRUE, X_w, uv, CAM.K, scales_px=(1e6,), iterations=5, sigma=sigma)
+    T_u = refine_pose(T_TRUE, X_w, uv, CAM.K, scales_px=(1e6,), iterations=5)
+    assert _pose_error(T_w, T_TRUE)[0] < _pose_error(T_u, T_TRUE)[0]
+
+
+def _context(X_w, desc, T_pred, uv_kp, desc_kp, map_ids=None):
+    n = len(uv_kp)
+    ids = np.arange(len(X_w)) + 1000 if map_ids is None else map_ids
+    return ScreeningContext(T_pred, {}, ids, X_w, desc, desc_kp, np.zeros(n, np.int64))
+
+
+def test_map_reference_pose_matches_descriptors_refines_and_reports_moved_points():
+    X_w, desc = _map()
+    uv, _ = CAM.project(transform_points(T_TRUE, X_w))
+    uv[:60] += np.array([7.0, 0.0])  # points that moved 7 px since they were mapped
+    T_pred = make_pose(so3_exp(np.array([0.001, 0.0, 0.0])), np.array([0.003, 0.0, 0.0])) @ T_TRUE
+    ctx = _context(X_w, desc, T_pred, uv, desc)
+    ref = map_reference_pose(ctx, uv, CAM, ReferencePoseConfig())
+    assert ref.source == "map"
+    t_err, r_err = _pose_error(ref.T_c_w, T_TRUE)
+    assert t_err < 1e-3 and r_err < 0.02
+    assert np.array_equal(ref.map_index, np.arange(len(X_w)))  # every keypoint found its own map point
+    assert ref.moved[:60].all() and not ref.moved[60:].any() and not ref.surface_moved.any()
+    assert not ref.inliers[:60].any() and ref.inliers[60:].all()
+
+
+def test_map_reference_pose_without_prediction_or_map():
+    X_w, desc = _map()
+    uv, _ = CAM.project(transform_points(T_TRUE, X_w))
+    assert map_reference_pose(None, uv, CAM).T_c_w is None
+    assert map_reference_pose(_context(X_w, desc, None, uv, desc), uv, CAM).T_c_w is None
+    empty = ScreeningContext(T_TRUE, {}, descriptors=desc, octave=np.zeros(len(uv), np.int64))
+    ref = map_reference_pose(empty, uv, CAM)
+    assert ref.source == "prediction" and np.array_equal(ref.T_c_w, T_TRUE)
+    # map points seen moving are matched but never inliers of the refinement
+    ctx = _context(X_w, desc, T_TRUE, uv, desc)
+    ref = map_reference_pose(ctx, uv, CAM, exclude_ids=ctx.map_ids[:100])
+    assert (ref.map_index >= 0).all() and not ref.inliers[:100].any() and ref.inliers[100:].all()
+
+
+def test_a_surface_that_moved_against_the_rest_is_found():
+    """A close box mapped while still, now 3 cm to the side: with a far background the least-squares
+    pose follows the box; leaving each surface out in turn finds it."""
+    rng = np.random.default_rng(4)
+    n_bg, n_box = 400, 150
+    uv_bg = np.column_stack([rng.uniform(10, 630, n_bg), rng.uniform(10, 470, n_bg)])
+    X_bg = CAM.backproject(uv_bg, rng.uniform(4.0, 5.0, n_bg))
+    uv_box = np.column_stack([rng.uniform(250, 400, n_box), rng.uniform(200, 400, n_box)])
+    X_box = CAM.backproject(uv_box, rng.uniform(1.5, 1.7, n_box))
+    X_w = np.vstack([X_bg, X_box])
+    X_now = X_w.copy()
+    X_now[n_bg:] += np.array([0.03, 0.0, 0.0])
+    uv, _ = CAM.project(transform_points(T_TRUE, X_now))
+    uv += rng.normal(0, 0.3, uv.shape)
+    labels = np.r_[rng.integers(1, 4, n_bg), np.full(n_box, 7)]  # three background surfaces and the box
+    sigma = np.ones(len(uv))
+    use = np.ones(len(uv), bool)
+    T = refine_pose(T_TRUE, X_w, uv, CAM.K)
+    moving = inconsistent_surfaces(T, X_w, uv, CAM.K, sigma, labels, use, ReferencePoseConfig())
+    assert moving[n_bg:].all() and not moving[:n_bg].any()
+
+
+def test_config_and_context_are_checked():
+    with pytest.raises(ValueError, match="moving_px"):
+        ReferencePoseConfig(moving_px=1.0, inlier_px=2.5)
+    with pytest.raises(ValueError, match="min_inliers"):
+        ReferencePoseConfig(min_inliers=3)
+    with pytest.raises(ValueError, match="T_c_w_pred"):
+        ScreeningContext(np.eye(3))
+    with pytest.raises(ValueError, match="one row per map point"):
+        ScreeningContext(None, {}, np.arange(3), np.zeros((2, 3)), np.zeros((3, 32), np.uint8))
+    with pytest.raises(ValueError, match="both descriptors and octave"):
+        ScreeningContext(None, descriptors=np.zeros((2, 32), np.uint8))
