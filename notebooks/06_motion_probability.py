@@ -123,7 +123,8 @@ figure_explorer(draw_restoration, name="06 restoration", delta_1=float_slider("d
 # The screener runs the semantic prior, the epipolar and multi-view checks on the previous frame
 # and this one, Zhang et al.'s levels (high and medium removed at once, low only with geometric
 # evidence) and restoration. Each ring is a stage that flagged the keypoint; cyan squares were
-# given back. $\delta_1$ starts at 0.7, where the levels leave the frame just short.
+# given back. $\delta_1$ starts at 0.7, just above the $\delta$ the levels leave (below it nothing comes back;
+above it, more than 0.7 gives nothing more).
 
 # %% figures=1
 prev = seq[9]
@@ -148,7 +149,7 @@ def draw_rule(delta_1=0.7, use_level_rule=True):
     return fig
 
 
-figure_explorer(draw_rule, name="06 level rule", delta_1=float_slider("delta_1", 0.7, 0.0, 1.0, 0.05),
+figure_explorer(draw_rule, name="06 level rule", probes={"delta_1": [0.0, 0.5]}, delta_1=float_slider("delta_1", 0.7, 0.0, 1.0, 0.05),
                 use_level_rule=checkbox("Zhang et al. 2023 levels", True));
 
 # %% [markdown]
