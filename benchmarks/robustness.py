@@ -5,6 +5,7 @@ Usage::
 
     python benchmarks/robustness.py                        # STRESS_SUITE + office walking presets, 300 frames
     python benchmarks/robustness.py --max-frames 150 --sequences boxes_xyz,walking_rpy
+    python benchmarks/robustness.py --frames 240 --sequences random_101,random_102,random_103   # scenes drawn from seeds
     python benchmarks/robustness.py --model /work/shared/data/models/yolox_nano.onnx   # adds full+onnx
 
 Writes OUTDIR/robustness.csv, robustness.md (the tables) and robustness.png (ATE per sequence and
@@ -23,7 +24,8 @@ OFFICE = ("walking_xyz", "walking_rpy", "walking_halfsphere", "walking_static", 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sequences", default=None, help="comma-separated names (default: STRESS_SUITE + office presets)")
+    ap.add_argument("--sequences", default=None, help="comma-separated names: stress scenes, random_N (the scene of `dynslam synth random --seed N`), "
+                    "office presets (default: STRESS_SUITE + office presets)")
     ap.add_argument("--frames", type=int, default=300, help="frames rendered per sequence (default 300)")
     ap.add_argument("--max-frames", type=int, default=None, help="frames run per sequence (default all rendered)")
     ap.add_argument("--out", default="runs/robustness", help="output folder (default runs/robustness)")

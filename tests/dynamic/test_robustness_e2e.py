@@ -44,3 +44,25 @@ def test_the_robustness_table_reports_every_run(runs):
     assert "| geometry |" in text and "## Targets (issue 16)" in text
     assert (out / "robustness.png").stat().st_size > 1000
     assert df.loc["geometry", "ate_vs_none"] == pytest.approx(df.loc["geometry", "ate_rmse_m"] / df.loc["none", "ate_rmse_m"])
+
+
+def test_random_scene_names_draw_the_same_scene_as_synth_random():
+    """``random_N`` in the benchmark is the scene of ``dynslam synth random --seed N``, with its reference
+    without movers on the same camera path (the renderer's own ground truth)."""
+    import numpy as np
+
+    from dynslam_lab.datasets import stress
+    from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.experiments.robustness import synthetic_specs
+
+    (spec,) = synthetic_specs(["random_7"], n_frames=6)
+    drawn = stress.random_scene_preset(7, n_frames=6)
+    meta = __import__("json").loads((spec.root / "synthetic.json").read_text())
+    assert spec.name == "random_7" and meta["preset"]["motion"] == drawn.motion
+    assert len(meta["preset"]["movers"]) == len(drawn.movers)
+    with_movers, without = TumSequence(spec.root), TumSequence(spec.reference)
+    assert len(with_movers) == len(without) == 6
+    np.testing.assert_allclose(with_movers[5].T_w_c_gt, without[5].T_w_c_gt, atol=1e-9)
+    assert (with_movers.root / "moving.txt").is_file()
+    with pytest.raises(ValueError, match="random_N"):
+        synthetic_specs(["random_x"], n_frames=6)
