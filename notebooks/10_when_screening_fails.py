@@ -187,7 +187,8 @@ plt.show()
 # %% [markdown]
 # **What to look for**: the black outline is the truly moving part of the image. `none` keeps
 # everything. `full+oracle` is the same picture as `geometry`, keypoint for keypoint: its semantic
-# and depth-RANSAC stages had no detection to work on, so only its geometry stages acted. `geometry`
+# prior and its depth-RANSAC (Wu et al. 2022, which splits a detection box into mover and background)
+# had no detection to work on, so only its geometry stages acted. `geometry`
 # flags 211 of the 266 moving keypoints (most on the left box's stripes, a few on the edges of the
 # near one) without one false alarm, though the boxes have only just started (0.24 and 0.30 m/s).
 # Perfect masks flag exactly the outlined keypoints.
