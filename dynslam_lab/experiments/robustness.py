@@ -333,14 +333,14 @@ def robustness_markdown(df: pd.DataFrame) -> str:
 
 def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
     """ATE per sequence and filter (log scale; the reference without movers as a line), written to ``path``."""
-    import matplotlib  # optional heavy dependency: only the plot needs it
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # optional heavy dependency: only the plot needs it. A Figure without pyplot: no global backend switch
+    # (matplotlib.use("Agg") here turned off a notebook's inline figures after run_robustness)
+    from matplotlib.figure import Figure
 
     seqs = list(dict.fromkeys(df["sequence"]))
     labels = [f for f in dict.fromkeys(df["filter"]) if f != REFERENCE]
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(seqs) + 2), 4.2))
+    fig = Figure(figsize=(max(6.0, 1.1 * len(seqs) + 2), 4.2))
+    ax = fig.subplots()
     width = 0.8 / max(len(labels), 1)
     x = np.arange(len(seqs))
     for k, label in enumerate(labels):
@@ -361,5 +361,4 @@ def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png"))
-    plt.close(fig)
     return path
