@@ -188,6 +188,10 @@ def search_by_projection(
     max_distance: int = TH_HIGH,
     ratio: float = 0.8,
     level_window: int = 1,
+    ratio_any_level: bool = False,
+    pred_depth: np.ndarray | None = None,
+    kp_depth: np.ndarray | None = None,
+    depth_tolerance: float = 0.0,
 ) -> Matches:
     """Match projected map points to keypoints near their projections (vectorised).
 
@@ -203,6 +207,13 @@ def search_by_projection(
     ratio : best / second-best distance ratio, tested when both candidates are on the same
         level as in ORB-SLAM2's ``SearchByProjection``.
     level_window : accepted ``|octave - pred_level|``.
+    ratio_any_level : test the ratio against the second-best candidate on any level (ours: on a
+        repeated pattern the neighbouring copy of a feature is the second candidate, often found on
+        another level, and the nearest descriptor is then a coin toss; such a point is left out).
+    pred_depth, kp_depth, depth_tolerance : with ``depth_tolerance > 0``, a pair is a candidate only
+        when the keypoint's measured depth (``kp_depth (N,)``, m, <= 0 or NaN = missing) is within
+        ``depth_tolerance * pred_depth`` of the point's predicted depth (``pred_depth (M,)``, m) (ours,
+        RGB-D: a copy of a pattern on another surface has another depth).
 
     Returns
     -------
@@ -228,6 +239,11 @@ def search_by_projection(
     if pred_level is not None:
         pl = np.asarray(pred_level)
         ok &= np.abs(np.asarray(kp_octave)[ib] - pl[ia]) <= level_window
+    if depth_tolerance > 0 and pred_depth is not None and kp_depth is not None:
+        zk = np.asarray(kp_depth, float)[ib]
+        zp = np.asarray(pred_depth, float)[ia]
+        has = np.isfinite(zk) & (zk > 0)
+        ok &= ~has | (np.abs(zk - zp) <= depth_tolerance * zp)
     ia, ib = ia[ok], ib[ok]
     if len(ia) == 0:
         return empty
@@ -246,7 +262,10 @@ def search_by_projection(
     second_d[has_second] = d[nxt[has_second]]
     oct_k = np.asarray(kp_octave)
     same_level = np.zeros(len(best), bool)
-    same_level[has_second] = oct_k[ib[best][has_second]] == oct_k[ib[nxt[has_second]]]
+    if ratio_any_level:
+        same_level[has_second] = True
+    else:
+        same_level[has_second] = oct_k[ib[best][has_second]] == oct_k[ib[nxt[has_second]]]
     ok = d[best] <= max_distance
     ok &= ~(same_level & (d[best] > ratio * second_d))
     best = best[ok]

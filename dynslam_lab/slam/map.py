@@ -22,6 +22,7 @@ Map points live in growing numpy arrays indexed by point id (never reused): ``xy
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
 
 from ..features.matching import hamming_pairs
 from .frame import KeyFrame
@@ -36,6 +37,8 @@ class Map:
     ----------
     scale_factor, n_levels : ORB pyramid (for the scale-invariance distances).
     """
+
+    INDEX_AFTER_SCANS = 8  # observation queries answered by a table scan before the point index is built
 
     def __init__(self, scale_factor: float = 1.2, n_levels: int = 8) -> None:
         self.scale_factor = float(scale_factor)
@@ -53,7 +56,13 @@ class Map:
         self.n_found = np.zeros(cap, np.int64)
         self.first_kf = np.zeros(cap, np.int64)
         self.rgb = np.zeros((cap, 3), np.uint8)
-        self._obs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._obs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # Index of the table by point id, CSR style (rows of point p: by_pt[start[p]:start[p + 1]]),
+        # and the covisibility dictionaries computed since the table was built; both go with it.
+        # The index is one tuple so that a reader never sees half of an old and half of a new one.
+        self._pt_index: tuple[np.ndarray, np.ndarray] | None = None
+        self._scans = 0  # queries answered by a scan since the table was built
+        self._covis: dict[int, dict[int, int]] = {}
         self._next_kf_id = 0
         # Culled keyframes: id -> (parent id, T_parent_kf), so frames anchored to them keep a pose.
         self.removed_anchor: dict[int, tuple[int, np.ndarray]] = {}
@@ -108,7 +117,7 @@ class Map:
         self.first_kf[ids] = kf.id
         self.rgb[ids] = 0 if rgb is None else rgb
         kf.map_point_ids[kp_idx] = ids
-        self._obs = None
+        self.invalidate()
         self.update_geometry(ids)
         return ids
 
@@ -122,7 +131,7 @@ class Map:
         for kid in np.unique(kf_ids):  # loop over keyframes, not keypoints
             sel = kf_ids == kid
             self.keyframes[int(kid)].map_point_ids[kp[sel]] = -1
-        self._obs = None
+        self.invalidate()
 
     # ------------------------------------------------------------ keyframes
     def new_keyframe_id(self) -> int:
@@ -135,7 +144,7 @@ class Map:
         if kf.id in self.keyframes:
             raise ValueError(f"keyframe id {kf.id} already in the map")
         self.keyframes[kf.id] = kf
-        self._obs = None
+        self.invalidate()
         if kf.parent_id < 0 and len(self.keyframes) > 1:
             cov = self.covisibility(kf.id)
             if cov:
@@ -158,7 +167,7 @@ class Map:
         if parent_now is not None:
             self.removed_anchor[kf_id] = (kf.parent_id, parent_now.T_c_w @ kf.T_w_c)
         del self.keyframes[kf_id]
-        self._obs = None
+        self.invalidate()
         parent = self.keyframes.get(kf.parent_id)
         if parent is not None:
             parent.children.discard(kf_id)
@@ -199,11 +208,51 @@ class Map:
     def invalidate(self) -> None:
         """Call after changing any keyframe's ``map_point_ids`` directly."""
         self._obs = None
+        self._pt_index = None
+        self._scans = 0
+        self._covis = {}
+
+    def _point_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the observation table sorted by point id ``(n_obs,)``, and the first of them of
+        each point ``(n_points_total + 1,)``: a point's observations are one slice. Built once per
+        table, so ``observations_of`` costs O(its rows), not a scan of the table. The grouping is
+        a counting sort, O(observations + points): the table as a one-row sparse matrix (column =
+        point id, value = row) converted from CSR to CSC (4x faster than ``np.argsort`` at 1000
+        keyframes, benchmarks/covisibility_speed.py)."""
+        index = self._pt_index
+        if index is None:
+            pt = self._table()[1]
+            rows = sparse.csr_matrix((np.arange(len(pt)), pt, np.array([0, len(pt)])), shape=(1, max(self._n, 1))).tocsc()
+            index = (rows.data.astype(np.int64), rows.indptr.astype(np.int64))
+            self._pt_index = index
+        return index
+
+    def _rows_of(self, ids: np.ndarray) -> np.ndarray:
+        """Observation-table rows of the points ``ids``, in table order. The first
+        ``INDEX_AFTER_SCANS`` queries after a change scan the table (``np.isin``); later ones use the
+        point index (built once, about as costly as 10 scans: a ski-rental rule, never much worse
+        than always scanning or always indexing; benchmarks/covisibility_speed.py)."""
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        if self._pt_index is None and self._scans < self.INDEX_AFTER_SCANS:
+            self._scans += 1
+            return np.flatnonzero(np.isin(self._table()[1], ids))
+        by_pt, start = self._point_index()
+        ids = ids[(ids >= 0) & (ids < len(start) - 1)]
+        if len(ids) == 0:
+            return np.zeros(0, np.int64)
+        ids = np.unique(ids)
+        lo, hi = start[ids], start[ids + 1]
+        n = hi - lo
+        total = int(n.sum())
+        if total == 0:
+            return np.zeros(0, np.int64)
+        offs = np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(total)
+        return np.sort(by_pt[offs])
 
     def observations_of(self, ids: np.ndarray, with_octave: bool = False) -> tuple[np.ndarray, ...]:
         """Observation rows ``(kf_id, point_id, keypoint_index[, octave])`` of the points ``ids``."""
         kf, pt, kp, octave = self._table()
-        sel = np.isin(pt, np.asarray(ids, np.int64))
+        sel = self._rows_of(ids)
         if with_octave:
             return kf[sel], pt[sel], kp[sel], octave[sel]
         return kf[sel], pt[sel], kp[sel]
@@ -227,11 +276,14 @@ class Map:
 
     def covisibility(self, kf_id: int) -> dict[int, int]:
         """``{other keyframe id: number of shared map points}`` for keyframe ``kf_id``."""
-        kf = self.keyframes[kf_id]
-        ids = kf.map_point_ids[kf.map_point_ids >= 0]
-        out = self.keyframes_observing(ids)
-        out.pop(kf_id, None)
-        return out
+        cached = self._covis.get(kf_id)
+        if cached is None:
+            kf = self.keyframes[kf_id]
+            ids = kf.map_point_ids[kf.map_point_ids >= 0]
+            cached = self.keyframes_observing(ids)
+            cached.pop(kf_id, None)
+            self._covis[kf_id] = cached
+        return dict(cached)
 
     def best_covisibles(self, kf_id: int, n: int | None = None, min_weight: int = 1) -> list[int]:
         """Covisible keyframe ids by decreasing weight (at most ``n``; weight ``>= min_weight``)."""

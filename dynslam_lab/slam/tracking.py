@@ -7,7 +7,11 @@ For each new frame, with only the keypoints the screening stage judged static:
    ``V = T_c_w^{last} (T_c_w^{before last})^{-1}``; project the map points matched in the last
    frame and search each within ``r = th * scale_factor**octave`` pixels (``th = 15`` for RGB-D),
    on the keypoint's pyramid level +-1, Hamming distance <= 100, orientation consistent;
-   doubling the radius once if fewer than 20 matches.
+   doubling the radius once if fewer than 20 matches. Ours, for repeated patterns, all off by
+   default (docs/tracking.md "Repeated patterns": none helped everywhere): a ratio test against the
+   second candidate on any level (``motion_ratio``), a depth-consistency gate
+   (``match_depth_tolerance``), and a second search in a tight window around the pose refined from
+   the first matches (``motion_refine_radius``).
 2. **Reference keyframe** fallback: match the descriptors of the frame to those of the
    reference keyframe's map points (ratio 0.7; ORB-SLAM2 uses its bag of words here) and
    estimate the pose by **PnP-RANSAC** (``cv2.solvePnPRansac``).
@@ -18,7 +22,9 @@ For each new frame, with only the keypoints the screening stage judged static:
    (in the image, at distance within the scale-invariance range ``[0.8 d_min, 1.2 d_max]``,
    viewing angle to the mean direction below 60 deg) are searched by projection with
    ``r = th * (2.5 or 4) * scale_factor**level`` (``th = 3`` for RGB-D), then the pose is refined
-   again. Tracking succeeds with at least 30 inliers (50 just after relocalisation).
+   again (ours, off by default: the same depth gate, and the ratio test against a second candidate
+   on any level, ``local_ratio_any_level``). Tracking succeeds with at least 30 inliers (50 just after
+   relocalisation).
 5. **Keyframe decision** (Sec. V-E and ORB-SLAM2 ``NeedNewKeyFrame``): a new keyframe when the
    frame tracks fewer than 60 % of the points of the reference keyframe (ORB-SLAM2: 75 % of those
    seen by two keyframes; without triangulation between keyframes our points are seen by fewer
@@ -43,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..features.matching import TH_HIGH, TH_LOW, match_descriptors, orientation_consistent, search_by_projection
+from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, transform_points
 from .frame import KeyFrame, SlamFrame
@@ -70,10 +76,14 @@ class TrackingConfig:
     init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
     motion_radius: float = 15.0  # motion-model search radius at level 0 (px); ORB-SLAM2 RGB-D th: 15
     motion_min_matches: int = 20  # matches needed before optimising (else radius x2); ORB-SLAM2: 20
+    motion_ratio: float = 1.0  # best / second-best Hamming distance in the motion-model search, second candidate on any level (1 = off, ORB-SLAM2: no ratio test there); ours, off: docs/tracking.md "Repeated patterns"
+    motion_refine_radius: float = 0.0  # px at level 0: second motion-model search around the refined pose (0 = off, ORB-SLAM2); ours, off: docs/tracking.md "Repeated patterns"
+    match_depth_tolerance: float = 0.0  # largest |z_keypoint - z_predicted| / z_predicted of a candidate in the motion-model and local-map searches (0 = off, ORB-SLAM2); ours (RGB-D), off: docs/tracking.md "Repeated patterns"
     min_track_inliers: int = 10  # inliers for motion-model / reference tracking; ORB-SLAM2: 10
     ref_ratio: float = 0.7  # ratio test for reference keyframe matching; ORB-SLAM2 SearchByBoW: 0.7
     local_radius: float = 3.0  # local map search factor th (px); ORB-SLAM2 RGB-D: 3 (5 after relocalisation)
     local_ratio: float = 0.8  # ratio test in local map search; ORB-SLAM2 SearchLocalPoints: 0.8
+    local_ratio_any_level: bool = False  # local-map ratio test against the second candidate on any level (True; ours, off: docs/tracking.md "Repeated patterns"); ORB-SLAM2: same level only (False)
     local_max_keyframes: int = 80  # local keyframes at most; ORB-SLAM2: 80
     local_neighbours: int = 10  # best covisible neighbours added per local keyframe; ORB-SLAM2: 10
     view_cos: float = 0.5  # minimum cos of viewing angle to a point's mean direction; ORB-SLAM2: 0.5 (60 deg)
@@ -109,12 +119,16 @@ class TrackingConfig:
         non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers",
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
-        ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio")
+        ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
+        for name in ("motion_refine_radius", "match_depth_tolerance"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        if not isinstance(self.overlap_detection, bool):
-            raise ValueError(f"TrackingConfig.overlap_detection must be a bool, got {self.overlap_detection!r}")
+        for name in ("overlap_detection", "local_ratio_any_level"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -241,25 +255,49 @@ class Tracker:
             return False
         uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
         vis = (z > 0) & self.camera.in_image(uv)
-        lidx, pids, uv = lidx[vis], pids[vis], uv[vis]
-        oct_last = last.octave[lidx]
+        lidx, pids, uv, z = lidx[vis], pids[vis], uv[vis], z[vis]
         frame.map_point_ids[:] = -1
+        cfg = self.cfg
         for factor in (1.0, 2.0):
-            m = search_by_projection(
-                uv, self.map.descriptors[pids], factor * self.cfg.motion_radius * self.scale_factor**oct_last, oct_last,
-                frame.uv, frame.octave, frame.descriptors, kp_available=frame.static, max_distance=TH_HIGH,
-                ratio=1.0,
-            )
-            if len(m):
-                m = m.select(orientation_consistent(last.angle[lidx[m.idx_a]], frame.angle[m.idx_b]))
-            if len(m) >= self.cfg.motion_min_matches:
+            m = self._search_last(frame, last, lidx, pids, uv, z, factor * cfg.motion_radius, cfg.motion_ratio)
+            if len(m) >= cfg.motion_min_matches:
                 break
-        if len(m) < self.cfg.motion_min_matches:
+        if len(m) < cfg.motion_min_matches:
             return False
         frame.map_point_ids[m.idx_b] = pids[m.idx_a]
         n = self._optimize(frame, T_pred)
+        if cfg.motion_refine_radius > 0 and n >= cfg.min_track_inliers:
+            # Second pass (ours): the pose from the unambiguous matches is accurate to a pixel or
+            # two, so every point of the last frame is searched again in a tight window, where the
+            # neighbouring copies of a repeated pattern cannot be reached.
+            T1 = se3_inv(frame.T_w_c)
+            uv, z = self.camera.project(transform_points(T1, self.map.xyz[pids]))
+            m2 = self._search_last(frame, last, lidx, pids, uv, z, cfg.motion_refine_radius, 1.0)
+            if len(m2) >= n:
+                frame.map_point_ids[:] = -1
+                frame.map_point_ids[m2.idx_b] = pids[m2.idx_a]
+                n = self._optimize(frame, T1)
         self._discard_outliers(frame)
-        return n >= self.cfg.min_track_inliers
+        return n >= cfg.min_track_inliers
+
+    def _search_last(self, frame: SlamFrame, last: SlamFrame, lidx: np.ndarray, pids: np.ndarray, uv: np.ndarray,
+                     z: np.ndarray, radius: float, ratio: float) -> Matches:
+        """Projection search of the last frame's points ``pids`` (keypoints ``lidx`` of ``last``),
+        predicted at pixels ``uv`` and depths ``z``, within ``radius * f**octave`` px, ratio tested
+        on any level, depth-consistent, orientation-consistent."""
+        oct_last = last.octave[lidx]
+        ok = self.camera.in_image(uv) & (z > 0)
+        m = search_by_projection(
+            uv[ok], self.map.descriptors[pids[ok]], radius * self.scale_factor**oct_last[ok], oct_last[ok],
+            frame.uv, frame.octave, frame.descriptors, kp_available=frame.static, max_distance=TH_HIGH,
+            ratio=ratio, ratio_any_level=True, pred_depth=z[ok], kp_depth=frame.depth,
+            depth_tolerance=self.cfg.match_depth_tolerance,
+        )
+        sel = np.flatnonzero(ok)
+        m = Matches(sel[m.idx_a], m.idx_b, m.distance)
+        if len(m):
+            m = m.select(orientation_consistent(last.angle[lidx[m.idx_a]], frame.angle[m.idx_b]))
+        return m
 
     def track_reference_keyframe(self, frame: SlamFrame) -> bool:
         """Descriptor matching against the reference keyframe's map points, PnP-RANSAC, refinement."""
@@ -332,9 +370,12 @@ class Tracker:
         mp.n_visible[ids] += 1
         th = self.cfg.local_radius + (2.0 if frame.index - self.last_reloc_frame < 2 else 0.0)
         radius = th * np.where(cos > 0.998, 2.5, 4.0) * self.scale_factor**lvl
+        z = transform_points(T_c_w, mp.xyz[ids])[:, 2]
         m = search_by_projection(
             uv, mp.descriptors[ids], radius, lvl, frame.uv, frame.octave, frame.descriptors,
             kp_available=self._available(frame), max_distance=TH_HIGH, ratio=self.cfg.local_ratio,
+            ratio_any_level=self.cfg.local_ratio_any_level, pred_depth=z, kp_depth=frame.depth,
+            depth_tolerance=self.cfg.match_depth_tolerance,
         )
         frame.map_point_ids[m.idx_b] = ids[m.idx_a]
         n = self._optimize(frame, T_c_w)

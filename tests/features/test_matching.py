@@ -101,3 +101,32 @@ def test_search_by_projection_radius_level_and_uniqueness():
     desc2 = np.vstack([desc[:1], _flip(kp_desc[:1], 30, rng)])
     m4 = search_by_projection(proj2, desc2, 5.0, None, kp_uv, kp_oct, kp_desc)
     assert len(m4) == 1 and m4.idx_a[0] == 0 and m4.idx_b[0] == 0
+
+
+def test_search_by_projection_depth_gate_and_any_level_ratio():
+    """Hand-built repeated pattern: one map point, two keypoints within the radius with near-equal
+    descriptors (a copy of the feature), one on another level and another surface."""
+    rng = np.random.default_rng(7)
+    d0 = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    kp_desc = np.vstack([_flip(d0, 20, rng), _flip(d0, 21, rng)])  # distances 20 and 21 to the point
+    assert list(hamming_distance(d0, kp_desc)[0]) == [20, 21]
+    kp_uv = np.array([[100.0, 100.0], [106.0, 100.0]])
+    kp_oct = np.array([0, 1])
+    args = (np.array([[101.0, 100.0]]), d0, 10.0, np.array([0]), kp_uv, kp_oct, kp_desc)
+    # ORB-SLAM2: second candidate on another level -> no ratio test, the nearer descriptor wins
+    m = search_by_projection(*args, ratio=0.9)
+    assert list(m.idx_b) == [0]
+    # any level: 20 > 0.9 * 21, ambiguous -> left out; a looser ratio keeps it
+    assert len(search_by_projection(*args, ratio=0.9, ratio_any_level=True)) == 0
+    assert list(search_by_projection(*args, ratio=0.96, ratio_any_level=True).idx_b) == [0]
+    # depth gate: the point is predicted at 2.0 m; keypoint 0 measures 2.5 m (25 % off), keypoint 1 2.1 m (5 %)
+    gate = dict(pred_depth=np.array([2.0]), kp_depth=np.array([2.5, 2.1]))
+    m = search_by_projection(*args, ratio=0.9, ratio_any_level=True, depth_tolerance=0.1, **gate)
+    assert list(m.idx_b) == [1]  # the copy on the wrong surface is no candidate, so no ambiguity either
+    assert list(search_by_projection(*args, ratio=0.9, ratio_any_level=True, depth_tolerance=0.3, **gate).idx_b) == []
+    assert list(search_by_projection(*args, ratio=0.9, depth_tolerance=0.0, **gate).idx_b) == [0]  # 0 = off
+    # a keypoint without depth (NaN or 0) is never excluded by the gate
+    for missing in (np.nan, 0.0):
+        m = search_by_projection(*args, ratio=0.9, depth_tolerance=0.1, pred_depth=np.array([2.0]),
+                                 kp_depth=np.array([missing, 2.1]))
+        assert list(m.idx_b) == [0]

@@ -110,3 +110,74 @@ def test_distinctive_descriptor_is_the_most_central_observation():
     assert np.array_equal(mp.descriptors[ids[0]], variants[0])
     assert not np.array_equal(before1, kfs[0].descriptors[1])
     assert np.array_equal(mp.descriptors[ids[1]], kfs[0].descriptors[1])  # a single observation
+
+
+def _brute_observations(mp: Map, ids) -> set[tuple[int, int, int]]:
+    """Independent reference: scan every keyframe's map_point_ids with np.isin."""
+    out = set()
+    for kf in mp.keyframes.values():  # test reference only
+        kp = np.flatnonzero(np.isin(kf.map_point_ids, np.asarray(ids, np.int64)) & (kf.map_point_ids >= 0))
+        out |= {(kf.id, int(kf.map_point_ids[k]), int(k)) for k in kp}
+    return out
+
+
+def _brute_covisibility(mp: Map, kf_id: int) -> dict[int, int]:
+    own = mp.keyframes[kf_id].map_point_ids
+    own = np.unique(own[own >= 0])
+    out = {}
+    for kf in mp.keyframes.values():
+        if kf.id != kf_id:
+            w = int(np.isin(kf.map_point_ids[kf.map_point_ids >= 0], own).sum())
+            if w:
+                out[kf.id] = w
+    return out
+
+
+def _check_index(mp: Map, rng) -> None:
+    queries = [mp.point_ids(), rng.integers(-3, mp.n_points_total + 3, 40), np.zeros(0, np.int64),
+               np.repeat(mp.point_ids()[:5], 3)]
+    for q in queries:
+        kf, pt, kp, octave = mp.observations_of(q, with_octave=True)
+        rows = {(int(a), int(b), int(c)) for a, b, c in zip(kf, pt, kp)}
+        assert len(rows) == len(kf)  # no row twice, even for repeated ids
+        assert rows == _brute_observations(mp, q)
+        assert all(octave[i] == mp.keyframes[int(kf[i])].octave[kp[i]] for i in range(len(kf)))
+    for kid in mp.keyframe_ids():
+        assert mp.covisibility(kid) == _brute_covisibility(mp, kid)
+    assert (mp._pt_index is not None) == (Map.INDEX_AFTER_SCANS < 1000)  # the path under test was taken
+
+
+@pytest.mark.parametrize("scans", [0, 3, 1000])
+def test_point_index_and_covisibility_cache_equal_brute_force(monkeypatch, scans):
+    """The CSR point index and the covisibility cache agree with a full np.isin scan after
+    point additions, direct edits + invalidate(), point removals and keyframe deletion (index
+    built at once, after a few scans, never)."""
+    monkeypatch.setattr(Map, "INDEX_AFTER_SCANS", scans)
+    rng = np.random.default_rng(12)
+    mp = Map()
+    kfs = []
+    for i in range(8):
+        kf = _kf(mp, 60, octave=i % 3)
+        if i:  # see a random subset of the existing points
+            pool = mp.point_ids()
+            take = rng.choice(len(pool), min(len(pool), 25), replace=False)
+            kf.map_point_ids[rng.choice(30, len(take), replace=False)] = pool[take]
+            mp.invalidate()
+        free = np.flatnonzero(kf.map_point_ids < 0)[:20]
+        mp.add_points(rng.normal(0, 1, (len(free), 3)) + [0, 0, 3], rng.integers(0, 256, (len(free), 32), dtype=np.uint8),
+                      kf, free)
+        kfs.append(kf)
+        _check_index(mp, rng)
+    before = mp.covisibility(kfs[0].id)
+    before[kfs[1].id] = -7  # the cache hands out copies
+    assert mp.covisibility(kfs[0].id) == _brute_covisibility(mp, kfs[0].id)
+    mp.remove_points(rng.choice(mp.point_ids(), 30, replace=False))
+    _check_index(mp, rng)
+    mp.remove_keyframe(kfs[3].id)
+    mp.remove_keyframe(kfs[6].id)
+    _check_index(mp, rng)
+    kf = _kf(mp, 60)  # after deletions: new keyframe, new points
+    kf.map_point_ids[:10] = mp.point_ids()[:10]
+    mp.invalidate()
+    mp.add_points(np.tile([0.0, 0.0, 2.0], (5, 1)), np.zeros((5, 32), np.uint8), kf, np.arange(40, 45))
+    _check_index(mp, rng)

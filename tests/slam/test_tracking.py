@@ -16,7 +16,7 @@ from dynslam_lab.slam.frame import KeyFrame, keypoint_depths, make_slam_frame
 from dynslam_lab.slam.map import Map
 from dynslam_lab.slam.system import System
 from dynslam_lab.geometry.pnp import pnp_ransac
-from dynslam_lab.slam.tracking import TrackState, frustum_candidates
+from dynslam_lab.slam.tracking import TrackingConfig, TrackState, frustum_candidates
 from tests.conftest import shared_file
 from tests.slam import scene
 
@@ -144,3 +144,14 @@ def test_motion_model_predicts_the_next_pose_of_a_constant_velocity_path():
     assert len(err) >= 14
     assert np.median(err) < 2e-3  # metres; measured 1.1 mm (the tracked poses' own error), reversed 7 mm
     assert np.median(err_reversed) > 4e-3 and np.median(err_reversed) > 4 * np.median(err)
+
+
+def test_repeated_pattern_options_are_validated():
+    for bad, field in (({"motion_ratio": 0.0}, "motion_ratio"), ({"motion_ratio": 1.2}, "motion_ratio"),
+                       ({"motion_refine_radius": -1.0}, "motion_refine_radius"),
+                       ({"match_depth_tolerance": -0.1}, "match_depth_tolerance"),
+                       ({"local_ratio_any_level": 1}, "local_ratio_any_level")):
+        with pytest.raises(ValueError, match=f"TrackingConfig.{field} must be"):
+            TrackingConfig(**bad)
+    off = TrackingConfig(motion_ratio=1.0, motion_refine_radius=0.0, match_depth_tolerance=0.0, local_ratio_any_level=False)
+    assert off.motion_ratio == 1.0  # every option can be switched off (the ORB-SLAM2 behaviour)
