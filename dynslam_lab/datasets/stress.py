@@ -653,7 +653,8 @@ def _cart(bank: TextureBank, rng: np.random.Generator, inst: int, w: float, leng
         bl = float(rng.uniform(0.3, 0.45))
         if y + bl > length - 0.05:
             break
-        bw, bh = float(rng.uniform(0.25, w / 2 - 0.02)), float(rng.uniform(0.15, 0.35))
+        half = w / 2 - 0.02  # the load's half-width: inside the platform (a 0.5 m cart leaves 0.23 m)
+        bw, bh = float(rng.uniform(min(0.25, half), half)), float(rng.uniform(0.15, 0.35))
         tex = bank.add(tx.cardboard_texture(256, 256, rng))
         parts.append((Shape("box", (bw, bl / 2, bh), textures=(tex,), instance=inst, density=400.0), pose(None, (0.0, y + bl / 2, 0.24 + bh))))
         y += bl + 0.03

@@ -85,6 +85,16 @@ def test_generator_draws_within_the_documented_ranges():
         st.random_scene_preset(0, kinds=("panel",) * 4, distance=(0.8, 1.2))
 
 
+def test_narrow_carts_build():
+    """``random_104`` (the benchmark's name for seed 104) draws a cart 0.51 m wide: the width range of its
+    load was once empty below 0.54 m and the scene failed to build. It builds, one instance per mover
+    (a pushed cart is two: the person and the cart)."""
+    p = st.random_scene_preset(104, name="random_104", n_frames=2)
+    assert min(m.size[0] for m in p.movers if m.kind == "cart") < 0.54
+    scene = st.build_stress_scene(p)
+    assert len(scene.movers) == len(p.movers) + sum(m.kind == "pushed" for m in p.movers)
+
+
 def test_motion_plans_reach_their_speed_stop_and_start():
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 40.0, 0.001)
