@@ -42,6 +42,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .table import check_uv
 
@@ -290,8 +291,6 @@ def screen_boxes(
             dynamic[no_z] = True
         elif len(no_z) and config.missing_depth == "nearest":
             # the verdict of the nearest keypoint of the same box that has a depth
-            from scipy.spatial import cKDTree
-
             _, nn = cKDTree(uv[members]).query(uv[no_z])
             dynamic[no_z] |= res.inliers[nn]
         results.append(res)

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..geometry.se3 import se3_inv
+
 __all__ = ["FlowConfig", "FlowResult", "farneback_flow", "ego_motion_flow", "human_driven_regions", "flow_regions"]
 
 
@@ -195,8 +197,6 @@ def flow_regions(
     depth, camera, T_c_p : current depth (m), intrinsics and rough pose previous -> current, to
         remove camera motion (skipped when any is None or ``compensate_ego_motion`` is off).
     """
-    from ..geometry.se3 import se3_inv
-
     H, W = gray.shape
     if person_mask.shape != (H, W):
         raise ValueError(f"flow_regions: person_mask {person_mask.shape} differs from image {(H, W)}")

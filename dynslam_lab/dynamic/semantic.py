@@ -19,9 +19,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from .table import check_uv
+from ..detection.coco import dynamic_level, is_apriori_dynamic, motion_probability
+from .table import check_uv, pixel_index
 
 __all__ = ["SemanticConfig", "SemanticResult", "semantic_prior", "LEVEL_CODES", "level_codes"]
 
@@ -71,8 +73,6 @@ class SemanticResult:
 
 def level_codes(class_ids: np.ndarray, priors=None) -> np.ndarray:
     """Zhang et al. 2023 level code of each COCO class id (``-1`` -> 0 = none)."""
-    from ..detection.coco import dynamic_level
-
     ids = np.asarray(class_ids, np.int64).reshape(-1)
     out = np.zeros(len(ids), np.int8)
     ok = ids >= 0
@@ -82,8 +82,6 @@ def level_codes(class_ids: np.ndarray, priors=None) -> np.ndarray:
 
 
 def _dilate_masks(masks: np.ndarray, radius: int) -> np.ndarray:
-    import cv2
-
     if radius <= 0 or len(masks) == 0:
         return masks
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
@@ -102,8 +100,6 @@ def _owner(uv: np.ndarray, dets, keep: np.ndarray, config: SemanticConfig) -> np
     if len(idx) == 0 or n == 0:
         return out
     if config.use_masks and dets.masks is not None:
-        from .table import pixel_index
-
         rows, cols, ok = pixel_index(uv, dets.image_size)
         masks = dets.masks
         if config.mask_dilation_px:
@@ -132,8 +128,6 @@ def semantic_prior(uv: np.ndarray, detections, config: SemanticConfig = Semantic
     config : prior set, masks or boxes.
     priors : :class:`~dynslam_lab.detection.config.MotionPriorConfig` or None for the papers' tables.
     """
-    from ..detection.coco import is_apriori_dynamic, motion_probability
-
     uv = check_uv(uv)
     n = len(uv)
     if detections is None or len(detections) == 0:

@@ -25,13 +25,15 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from ..config import Config, config_to_dict
+from ..datasets import stress
+from ..datasets.synthetic import PRESETS, synthetic_sequence
 from ..datasets.tum import TumSequence
 from ..pipeline import build_pipeline
 from ..runs import run_sequence
@@ -76,14 +78,9 @@ def synthetic_specs(names, n_frames: int | None = None, seed: int = 0) -> list[S
     """Rendered (cached) synthetic sequences with their references without movers.
 
     ``names``: stress scenes (:data:`~dynslam_lab.datasets.stress.STRESS_SUITE`, or ``random_N``: the
-    scene drawn from seed N; reference: the same scene ``without_movers()``) or office presets (reference: ``static_MOTION``, the office without
-    people on the same camera path, when the renderer has it).
+    scene drawn from seed N; reference: the same scene ``without_movers()``) or office presets (reference:
+    ``static_MOTION``, the office without people on the same camera path, when the renderer has it).
     """
-    from dataclasses import replace
-
-    from ..datasets import stress
-    from ..datasets.synthetic import PRESETS, synthetic_sequence
-
     suite = stress.STRESS_SUITE
     out = []
     for name in names:
