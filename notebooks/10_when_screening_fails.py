@@ -340,7 +340,7 @@ check("10.2", answer, float(fs.margin_m[0]), atol=1e-5)
 OFFSETS = {"1 (one frame)": (1,), "1, 2, 4": (1, 2, 4), "1, 2, 4, 8, 16": (1, 2, 4, 8, 16)}
 
 
-def draw_evidence(index=12, depth_m=0.1, steps=8, offsets="1, 2, 4, 8, 16"):
+def draw_evidence(index=12, depth_m=0.1, steps=64, offsets="1, 2, 4, 8, 16"):
     sc = config.screening
     cfg = dataclasses.replace(sc, multiframe=dataclasses.replace(sc.multiframe, depth_m=depth_m, offsets=OFFSETS[offsets]),
                               regions=dataclasses.replace(sc.regions, steps=steps))
@@ -365,7 +365,7 @@ figure_explorer(draw_evidence, name="10 geometry evidence",
                         "offsets": ["1 (one frame)", "1, 2, 4"]},
                 index=int_slider("frame", 12, 2, N_FRAMES - 1),
                 depth_m=float_slider("tau floor depth_m [m]", 0.1, 0.02, 0.6, 0.02),
-                steps=int_slider("region steps [cells]", 8, 0, 16),
+                steps=int_slider("region steps [cells]", 64, 0, 96),
                 offsets=dropdown("earlier frames", list(OFFSETS), "1, 2, 4, 8, 16"));
 
 # %% [markdown]

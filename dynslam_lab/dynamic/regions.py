@@ -37,7 +37,7 @@ __all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_seg
 class RegionConfig:
     """Parameters of region growing on the reduced grid (ours, after DynaSLAM's region growing, Bescos et al. 2018)."""
 
-    steps: int = 8  # growth steps from the seeds (cells; 8 x 4 px = 32 px at factor 4); ours
+    steps: int = 64  # growth steps from the seeds (cells; 64 x 4 px = 256 px at factor 4: a close mover as a whole); ours (docs/robustness.md: 8 vs 64)
     continuity_rel: float = 0.04  # neighbours join when |z_a - z_b| < continuity_rel * min(z_a, z_b); ours
     static_min_agree: int = 2  # a cell is confirmed static when this many earlier frames (and all tested) agree; ours
     min_fresh_cells: int = 3  # a region needs this many cells of fresh evidence; ours
