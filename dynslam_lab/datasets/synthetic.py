@@ -28,12 +28,14 @@ import json
 import os
 import shutil
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm.auto import tqdm
 
 from ..camera import CAMERA_PRESETS, PinholeCamera, save_camera_json
 from ..geometry.se3 import pose_to_tum
@@ -46,6 +48,7 @@ from .raycaster import ray_grid
 from .shapes import shape_corners
 from .stress import StressPreset, random_scene_preset
 from .textures import TextureAtlas, build_atlas, sample_atlas
+from .tum import TumSequence
 
 __all__ = [
     "DepthNoise",
@@ -508,8 +511,6 @@ def render_sequence(
     coverage = _CoverageLog(mover_ids, renderer)
     frames = range(n)
     if progress:
-        from tqdm.auto import tqdm
-
         frames = tqdm(frames, desc=f"render {p.name}", unit="frame")
     png = [cv2.IMWRITE_PNG_COMPRESSION, 1]
 
@@ -518,8 +519,6 @@ def render_sequence(
             raise OSError(f"{path}: cannot write image")
 
     # PNG encoding (OpenCV releases the GIL) overlaps with rendering the next frame
-    from concurrent.futures import ThreadPoolExecutor
-
     pending: list = []
     with ThreadPoolExecutor(max_workers=2) as pool:
         for i in frames:
@@ -666,7 +665,6 @@ def truth_views(root: str | Path, frames) -> list[tuple]:
     as stored with its depth replaced by the renderer's exact (noise-free) depth, the true
     ``T_w_c``, and the mask of the moving instances at that moment.
     """
-    from .tum import TumSequence
 
     root = Path(root)
     meta_path = root / "synthetic.json"

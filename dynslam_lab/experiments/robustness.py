@@ -332,7 +332,7 @@ def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
     """ATE per sequence and filter (log scale; the reference without movers as a line), written to ``path``."""
     # optional heavy dependency: only the plot needs it. A Figure without pyplot: no global backend switch
     # (matplotlib.use("Agg") here turned off a notebook's inline figures after run_robustness)
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # heavy: only for the plot
 
     seqs = list(dict.fromkeys(df["sequence"]))
     labels = [f for f in dict.fromkeys(df["filter"]) if f != REFERENCE]
