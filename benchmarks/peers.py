@@ -58,6 +58,8 @@ from dynslam_lab.evaluation import TrajectoryError, read_tum_trajectory
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_FILTERS = ("none", "geometry", "full")
+#: Filters that need a detector (``dynslam run`` refuses them with ``--detector none``).
+NEEDS_DETECTOR = ("semantic", "depth_ransac", "full")
 #: Peers this script knows: name -> (script in benchmarks/, its extra arguments).
 PEERS = {
     "orbslam3": ("peer_orbslam3.py", ()),
@@ -109,7 +111,11 @@ def dynslam_specs(filters: list[str], detector: str, config: str | None = None) 
             cmd += ["--detector", detector]
         if config:
             cmd += ["--config", str(config)]
-        specs.append(SystemSpec(f"dynslam {f}", "dynslam", tuple(cmd)))
+        skip = None
+        if f in NEEDS_DETECTOR and detector == "none":
+            skip = (f"--filters {f} judges keypoints from detections: pass --detector oracle (synthetic sequences) "
+                    "or onnx:MODEL.onnx (any sequence)")
+        specs.append(SystemSpec(f"dynslam {f}", "dynslam", tuple(cmd), skip))
     return specs
 
 

@@ -338,3 +338,12 @@ def test_peer_scripts_refuse_to_overwrite_a_run(tmp_path):
         peer_common.PeerRecorder("x", tmp_path, out, CAMERA_PRESETS["default"])
     p = subprocess.run([sys.executable, str(BENCH / "peer_open3d.py"), str(tmp_path)], capture_output=True, text=True)
     assert p.returncode == 2 and "--out are required" in p.stderr
+
+
+def test_filters_that_need_a_detector_are_skipped_with_the_reason_without_one():
+    """``full`` with ``--detector none`` is refused by ``dynslam run``: the benchmark reports it as skipped, with
+    what to pass, instead of running it into that error."""
+    specs = {s.name: s for s in peers.dynslam_specs(["none", "geometry", "full"], "none")}
+    assert specs["dynslam none"].skip is None and specs["dynslam geometry"].skip is None
+    assert "--detector oracle" in specs["dynslam full"].skip
+    assert peers.dynslam_specs(["full"], "oracle")[0].skip is None
