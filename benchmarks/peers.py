@@ -54,12 +54,12 @@ from pathlib import Path
 
 import numpy as np
 
+from dynslam_lab.config import Config, load_config
 from dynslam_lab.evaluation import TrajectoryError, read_tum_trajectory
+from dynslam_lab.pipeline import detector_stages
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_FILTERS = ("none", "geometry", "full")
-#: Filters that need a detector (``dynslam run`` refuses them with ``--detector none``).
-NEEDS_DETECTOR = ("semantic", "depth_ransac", "full")
 #: Peers this script knows: name -> (script in benchmarks/, its extra arguments).
 PEERS = {
     "orbslam3": ("peer_orbslam3.py", ()),
@@ -104,6 +104,7 @@ class SystemSpec:
 # ------------------------------------------------------------------------------ the systems
 def dynslam_specs(filters: list[str], detector: str, config: str | None = None) -> list[SystemSpec]:
     """``dynslam run`` once per filter set, through the command line (``python -m dynslam_lab``)."""
+    base = load_config(config, Config()) if config else Config()
     specs = []
     for f in filters:
         cmd = [sys.executable, "-m", "dynslam_lab", "run", "--filters", f, "--quiet"]
@@ -111,10 +112,14 @@ def dynslam_specs(filters: list[str], detector: str, config: str | None = None) 
             cmd += ["--detector", detector]
         if config:
             cmd += ["--config", str(config)]
+        try:
+            needs = detector_stages(f, base)
+        except ValueError:  # an unknown filter: `dynslam run` says so when it is run
+            needs = []
         skip = None
-        if f in NEEDS_DETECTOR and detector == "none":
-            skip = (f"--filters {f} judges keypoints from detections: pass --detector oracle (synthetic sequences) "
-                    "or onnx:MODEL.onnx (any sequence)")
+        if needs and detector == "none":
+            skip = (f"--filters {f} runs {needs}, which judge keypoints from detections: pass --detector oracle "
+                    "(synthetic sequences) or onnx:MODEL.onnx (any sequence)")
         specs.append(SystemSpec(f"dynslam {f}", "dynslam", tuple(cmd), skip))
     return specs
 

@@ -22,19 +22,22 @@ from .camera import PinholeCamera
 from .config import Config
 from .detection import build_detector
 from .dynamic.screening import build_screener, parse_filters
+from .dynamic.stages import DETECTION_STAGES
 from .errors import UsageError
 from .slam.loop_closing import LoopCloser
 from .slam.system import System
 
-__all__ = ["build_pipeline", "DETECTOR_STAGES"]
+__all__ = ["build_pipeline", "detector_stages"]
 
-#: Screening stages that judge keypoints from detections: without a detector they do nothing.
-DETECTOR_STAGES = ("semantic", "depth_ransac")
+
+def detector_stages(filters: str, config: Config) -> list[str]:
+    """The stages of ``filters`` (as ``config`` defines them) that judge keypoints from detections
+    (:data:`~dynslam_lab.dynamic.stages.DETECTION_STAGES`): without a detector they cannot run."""
+    return [s for s in parse_filters(filters, config.screening) if s in DETECTION_STAGES]
 
 
 def _check_combination(filters: str, detector: str, config: Config) -> None:
-    stages = parse_filters(filters, config.screening)
-    needs = [s for s in stages if s in DETECTOR_STAGES]
+    needs = detector_stages(filters, config)
     if needs and str(detector).strip().lower() in ("", "none"):
         raise UsageError(
             f"--filters {filters!r} runs {needs}, which judge keypoints from detections, but --detector is 'none': "

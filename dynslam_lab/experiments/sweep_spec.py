@@ -55,7 +55,7 @@ from ..config import Config, config_to_dict, with_overrides
 from ..datasets.synthetic import cache_key, get_preset
 from ..datasets.tum import TumSequence
 from ..dynamic.screening import parse_filters
-from ..pipeline import DETECTOR_STAGES
+from ..pipeline import detector_stages
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -443,16 +443,15 @@ class SweepSpec:
                         where = f"{self.source}: run {seq.label} {filt} " + " ".join(f"{k}={v!r}" for k, v in zip(keys, point))
                         try:
                             config = with_overrides(base, grid_over)
-                            stages = parse_filters(filt, config.screening)
+                            needs = detector_stages(filt, config)
                         except ValueError as exc:
                             raise ValueError(f"{where}: {exc}") from exc
-                        needs_detector = any(s in DETECTOR_STAGES for s in stages)
-                        detector = "none" if not needs_detector else det
+                        detector = det if needs else "none"
                         if detector == "auto":
                             detector = "oracle" if seq.has_truth() else "none"
-                        if needs_detector and detector == "none":
+                        if needs and detector == "none":
                             raise ValueError(
-                                f"{where}: filter {filt!r} runs {[s for s in stages if s in DETECTOR_STAGES]}, which judge "
+                                f"{where}: filter {filt!r} runs {needs}, which judge "
                                 f"keypoints from detections, but the detector is none for {seq.label} (no synthetic masks "
                                 "there for 'auto'): set [sweep] detectors = ['onnx:MODEL'] or ['cache:DIR']")
                         det_id = detector_ids.get(detector, {"spec": detector})
