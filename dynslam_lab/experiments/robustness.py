@@ -81,30 +81,31 @@ def synthetic_specs(names, n_frames: int | None = None, seed: int = 0) -> list[S
     scene drawn from seed N; reference: the same scene ``without_movers()``) or office presets (reference:
     ``static_MOTION``, the office without people on the same camera path, when the renderer has it).
     """
-    suite = stress.STRESS_SUITE
     out = []
     for name in names:
-        drawn = _random_seed(name)
-        if name in suite or drawn is not None:
-            if drawn is not None:
-                p = stress.random_scene_preset(drawn, name=name, n_frames=300 if n_frames is None else int(n_frames))
-            else:
-                p = suite[name] if n_frames is None else replace(suite[name], n_frames=int(n_frames))
+        p = _stress_preset(name, n_frames)
+        if p is not None:
             out.append(SequenceSpec(name, synthetic_sequence(p), synthetic_sequence(p.without_movers())))
         elif name in PRESETS:
             ref = f"static_{PRESETS[name].motion}"
             ref_root = synthetic_sequence(ref, n_frames=n_frames, seed=seed) if ref in PRESETS and ref != name else None
             out.append(SequenceSpec(name, synthetic_sequence(name, n_frames=n_frames, seed=seed), ref_root))
         else:
-            raise ValueError(f"unknown synthetic sequence {name!r}; stress scenes: {list(suite)}, random_N (a stress "
-                             f"scene drawn from seed N), office presets: {list(PRESETS)}")
+            raise ValueError(f"unknown synthetic sequence {name!r}; stress scenes: {list(stress.STRESS_SUITE)}, random_N "
+                             f"(a stress scene drawn from seed N), office presets: {list(PRESETS)}")
     return out
 
 
-def _random_seed(name: str) -> int | None:
-    """``N`` of a name ``random_N`` (a stress scene drawn from seed N, as ``dynslam synth random --seed N``)."""
+def _stress_preset(name: str, n_frames: int | None) -> stress.StressPreset | None:
+    """The stress scene ``name`` of the suite, or for ``random_N`` the scene drawn from seed N (as ``dynslam synth
+    random --seed N``); None for any other name. ``n_frames`` None keeps the preset's length."""
+    length = {} if n_frames is None else {"n_frames": int(n_frames)}
     head, _, tail = name.partition("_")
-    return int(tail) if head == "random" and tail.isdigit() else None
+    if head == "random" and tail.isdigit():
+        return stress.random_scene_preset(int(tail), name=name, **length)
+    if name in stress.STRESS_SUITE:
+        return replace(stress.STRESS_SUITE[name], **length)
+    return None
 
 
 def _coverage(root: Path) -> tuple[float, float]:
