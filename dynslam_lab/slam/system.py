@@ -3,7 +3,8 @@
 
 Per frame::
 
-    ORB extraction || detector.detect(frame)  (side by side: the detector in a worker thread)
+    ORB extraction || detector.detect(frame)  (side by side: the detector in a worker thread;
+                                               both may start ahead, from ``prepare(frame)``)
       -> screener.screen(frame, uv, detections)
       -> tracking with the static keypoints only -> keyframe decision
       -> local mapping (new points, fusion, culling, local BA) for a new keyframe
@@ -19,9 +20,10 @@ keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_
 
 from __future__ import annotations
 
+import threading
 import time
 import weakref
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -42,6 +44,19 @@ from .tracking import Tracker, TrackState
 from .vocabulary import default_vocabulary
 
 __all__ = ["System", "FrameResult"]
+
+
+@dataclass
+class _Prepared:
+    """What :meth:`System.prepare` computed for one frame ahead of :meth:`System.process`: its ORB
+    features (or the exception extraction raised), the extraction's time, and the detection's
+    future (None without a detector)."""
+
+    frame: Frame
+    feats: Features | None
+    orb_ms: float
+    error: BaseException | None
+    detection: Future | None
 
 
 @dataclass
@@ -144,6 +159,8 @@ class System:
         self.loop_edges: list[tuple[int, int]] = []
         self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
         self._detect_pool: ThreadPoolExecutor | None = None  # one worker: detection beside ORB
+        self._prepared: dict[int, _Prepared] = {}  # frame index -> work done ahead by prepare()
+        self._lock = threading.Lock()  # prepare() runs in the reader thread: guards the two above
 
     def effective_config(self):
         """The configuration every stage actually runs with: :attr:`config` with the detection,
@@ -165,21 +182,71 @@ class System:
         detections = self.detector.detect(frame)
         return detections, 1e3 * (time.perf_counter() - t0)
 
-    def _orb_and_detect(self, frame: Frame, t: dict) -> tuple[Features, Any]:
-        """ORB extraction and detection of one frame; with ``tracking.overlap_detection`` the
-        detector runs in a worker thread meanwhile (onnxruntime and OpenCV release the GIL), so
-        ``t["orb"] + t["detect"]`` may exceed the time both took."""
-        future = None
-        if self.detector is not None and self.config.tracking.overlap_detection:
+    def _submit_detection(self, frame: Frame) -> Future | None:
+        """Start ``detector.detect(frame)`` in the detection worker (``tracking.overlap_detection``), else None."""
+        if self.detector is None or not self.config.tracking.overlap_detection:
+            return None
+        with self._lock:
             if self._detect_pool is None:
                 self._detect_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-detect")
                 weakref.finalize(self, self._detect_pool.shutdown, wait=False)
-            future = self._detect_pool.submit(self._detect, frame)
+            return self._detect_pool.submit(self._detect, frame)
+
+    def prepare(self, frame: Frame) -> None:
+        """Do ahead what :meth:`process` needs from the images alone: ORB extraction here, and the
+        detection started in the detection worker. Safe to call from another thread while
+        :meth:`process` runs on an earlier frame (the runner's reader thread calls it for frames
+        ``t+1 ..`` while frame ``t`` is tracked: OpenCV's ORB and onnxruntime release the GIL, so
+        they run on the second core). :meth:`process` of this same frame object then uses the work
+        instead of redoing it; the results are identical (extraction and detection depend on the
+        frame only). An extraction error is raised by :meth:`process`, for that frame."""
+        future = self._submit_detection(frame)
         t0 = time.perf_counter()
+        feats, error = None, None
         try:
             feats = extract_features(frame.gray, self.config.orb)
+        except Exception as exc:  # raised again by process(), for this frame only
+            error = exc
+        prep = _Prepared(frame, feats, 1e3 * (time.perf_counter() - t0), error, future)
+        with self._lock:
+            self._prepared[int(frame.index)] = prep
+
+    def _take_prepared(self, frame: Frame) -> _Prepared | None:
+        """The work :meth:`prepare` did for this frame object (and forget it, and any left for
+        earlier frames, e.g. frames a caller skipped), or None."""
+        with self._lock:
+            prep = self._prepared.pop(int(frame.index), None)
+            for k in [k for k in self._prepared if k < frame.index]:
+                stale = self._prepared.pop(k)
+                if stale.detection is not None:
+                    stale.detection.cancel()
+        if prep is not None and prep.frame is not frame:  # another frame with the same index: not its work
+            if prep.detection is not None:
+                prep.detection.cancel()
+            return None
+        return prep
+
+    def _orb_and_detect(self, frame: Frame, t: dict) -> tuple[Features, Any]:
+        """ORB extraction and detection of one frame; with ``tracking.overlap_detection`` the
+        detector runs in a worker thread meanwhile (onnxruntime and OpenCV release the GIL), so
+        ``t["orb"] + t["detect"]`` may exceed the time both took. After :meth:`prepare` both were
+        done (or started) ahead: ``t["orb"]`` is then the extraction's time in the thread that ran
+        it, outside ``t["total"]``."""
+        prep = self._take_prepared(frame)
+        if prep is not None:
+            feats, future, t["orb"] = prep.feats, prep.detection, prep.orb_ms
+        else:
+            future = self._submit_detection(frame)
+            t0 = time.perf_counter()
+            feats = None
+        try:
+            if prep is None:
+                feats = extract_features(frame.gray, self.config.orb)
+            elif prep.error is not None:
+                raise prep.error
         finally:
-            t["orb"] = 1e3 * (time.perf_counter() - t0)
+            if prep is None:
+                t["orb"] = 1e3 * (time.perf_counter() - t0)
             detections = None
             if future is not None:  # waited for even when ORB failed: one frame's detection at a time
                 detections, t["detect"] = future.result()

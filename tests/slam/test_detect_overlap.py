@@ -72,3 +72,36 @@ def test_a_failing_detector_fails_that_frame_only():
     with pytest.raises(RuntimeError, match="frame 2"):
         system.process(frames[2])
     assert system.process(frames[3]).tracked
+
+
+def test_prepare_ahead_in_another_thread_gives_the_same_results():
+    """``System.prepare`` (ORB + detection started ahead, as the runner's reader thread does) gives
+    the frame-by-frame results of plain ``process``; a frame whose extraction failed fails alone."""
+    frames = scene.frames(40, "xyz")[:8]
+    _, _, plain = _run(frames, overlap=True)
+    cfg = Config()
+    det = MovingBoxDetector()
+    system = System(frames[0].camera, cfg, detector=det, screener=build_screener("semantic", cfg.screening))
+    reader = threading.Thread(target=lambda: [system.prepare(f) for f in frames[:4]], name="reader")
+    reader.start()
+    reader.join()
+    assert sorted(system._prepared) == [0, 1, 2, 3]
+    ahead = [system.process(f) for f in frames]  # 0-3 prepared ahead, 4-7 extracted in process
+    assert not system._prepared
+    for a, b in zip(ahead, plain):
+        assert a.state == b.state and a.is_keyframe == b.is_keyframe
+        np.testing.assert_array_equal(a.uv, b.uv)
+        np.testing.assert_array_equal(a.dynamic, b.dynamic)
+        np.testing.assert_array_equal(a.T_w_c, b.T_w_c)
+        assert a.timings_ms["orb"] > 0
+    # the prepared work of another frame object with the same index is not used
+    other = replace(frames[1], rgb=np.zeros_like(frames[1].rgb))
+    system.prepare(other)
+    assert system._take_prepared(frames[1]) is None and not system._prepared
+    # an extraction error surfaces in process(), for that frame only
+    bad = replace(frames[2], rgb=np.zeros((2, 2, 3), np.uint8))
+    system.prepare(bad)
+    assert system._prepared[2].error is not None
+    with pytest.raises(type(system._prepared[2].error)):
+        system.process(bad)
+    assert system.process(frames[3]).state is not None
