@@ -178,8 +178,10 @@ class RunRecorder:
         if self.save_labels and res.table is not None:
             self.writer.labels(index, res.table.to_dataframe())
 
-    def write(self, system: System, summary: dict, final: bool = False) -> None:
-        """Every file of the run as it stands, ``summary.json`` last.
+    def write(self, system: System, summary: dict, final: bool = False, wait: bool = True) -> None:
+        """Every file of the run as it stands, ``summary.json`` last; ``wait``: apply the loop
+        closer's pending corrections first (False, for the flushes during a run: the frame loop does
+        not wait for the worker, and the files show the map as it stands).
 
         While the files change, ``summary.json`` lists none of them, so that at every instant
         each file it lists is the one it describes. ``final`` also deletes the thumbnails of
@@ -191,10 +193,10 @@ class RunRecorder:
             keep = {f"{FILES['thumbs']}/{k}.jpg" for k in system.map.keyframes}
             for rel in [r for r in w.files if r.startswith(FILES["thumbs"] + "/") and r not in keep]:
                 w.remove(rel)
-        w.trajectory(system.trajectory())
+        w.trajectory(system.trajectory(wait))
         w.timing(self.rows)
-        w.keyframes(**system.keyframe_arrays())
-        w.map_points(**system.map_point_arrays())
+        w.keyframes(**system.keyframe_arrays(wait))
+        w.map_points(**system.map_point_arrays(wait))
         xyz = np.concatenate(self.dynamic_xyz) if self.dynamic_xyz else np.zeros((0, 3))
         fr = np.concatenate(self.dynamic_frame) if self.dynamic_frame else np.zeros(0, np.int64)
         w.dynamic_points(xyz, fr)
@@ -206,8 +208,10 @@ class RunRecorder:
             self.config_dict = config_to_dict(system.effective_config())
         return self.config_dict
 
-    def summary(self, sequence, system: System, n_frames: int, complete: bool, state: str = "running") -> dict:
-        """The ``summary.json`` dict of the run so far (``state``: running, complete, interrupted, failed)."""
+    def summary(self, sequence, system: System, n_frames: int, complete: bool, state: str = "running",
+                wait: bool = True) -> dict:
+        """The ``summary.json`` dict of the run so far (``state``: running, complete, interrupted, failed;
+        ``wait``: as :meth:`write`)."""
         stage_ms = {s: np.array([r.get(s, np.nan) for r in self.rows], float) for s in STAGES}
         return {
             "sequence": str(sequence.root),
@@ -215,13 +219,13 @@ class RunRecorder:
             "state": state,
             "frames": n_frames,
             "processed": len(self.rows),
-            "tracked": len(system.trajectory()),
+            "tracked": len(system.trajectory(wait)),
             "lost": len(system.lost_frames),
             "lost_frames": list(system.lost_frames),
             "keyframes": len(system.map.keyframes),
             "map_points": int(len(system.map.point_ids())),
             "loops": len(system.loop_results),
-            "loop_edges": [list(e) for e in system.keyframe_arrays()["loop_edges"].tolist()],
+            "loop_edges": [list(e) for e in system.keyframe_arrays(wait)["loop_edges"].tolist()],
             "timing_median_ms": {s: (float(np.nanmedian(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
             "timing_mean_ms": {s: (float(np.nanmean(v)) if np.isfinite(v).any() else None) for s, v in stage_ms.items()},
             "failed_frames": len(self.errors),
@@ -338,7 +342,8 @@ def run_sequence(
                     bar.set_postfix(state=res.state, kf=len(system.map.keyframes), lost=len(system.lost_frames), refresh=False)
                     bar.update()
                     if i == 0 or (i + 1) % flush_every == 0:
-                        rec.write(system, rec.summary(sequence, system, n, complete=False))
+                        # no waiting for the loop closer's worker here: the frame loop goes on
+                        rec.write(system, rec.summary(sequence, system, n, complete=False, wait=False), wait=False)
                     t_frame = time.perf_counter()
             return _finish(sequence, system, rec, n, t_run)
         except KeyboardInterrupt:

@@ -426,9 +426,12 @@ class System:
         self.lost_frames.append(int(index))
 
     # --------------------------------------------------------------- outputs
-    def trajectory(self) -> Trajectory:
-        """Every tracked frame, ``T_w_c = T_w_ref T_ref_c`` with the current keyframe poses."""
-        self.finish_loop_closing()
+    def trajectory(self, wait: bool = True) -> Trajectory:
+        """Every tracked frame, ``T_w_c = T_w_ref T_ref_c`` with the current keyframe poses; ``wait``:
+        the pending loop corrections first (False: as the map stands, without waiting for the loop
+        closer's worker: what a partial flush during a run writes)."""
+        if wait:
+            self.finish_loop_closing()
         if not self._anchors:
             return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
         ts = np.array([a[0] for a in self._anchors])
@@ -440,9 +443,11 @@ class System:
             poses.append(cache[ref] @ T_ref_c)
         return Trajectory(ts, np.stack(poses))
 
-    def keyframe_arrays(self) -> dict[str, np.ndarray]:
-        """Arrays of ``keyframes.npz``: ids, frame_index, timestamps, poses, loop_edges."""
-        self.finish_loop_closing()
+    def keyframe_arrays(self, wait: bool = True) -> dict[str, np.ndarray]:
+        """Arrays of ``keyframes.npz``: ids, frame_index, timestamps, poses, loop_edges (``wait``: as
+        :meth:`trajectory`)."""
+        if wait:
+            self.finish_loop_closing()
         kfs = [self.map.keyframes[k] for k in sorted(self.map.keyframes)]
         edges = set(self.loop_edges)
         for kf in kfs:
@@ -456,8 +461,9 @@ class System:
             "loop_edges": np.array(sorted(edges), np.int64).reshape(-1, 2),
         }
 
-    def map_point_arrays(self) -> dict[str, np.ndarray]:
-        """Arrays of ``map_points.npz``: xyz, rgb, n_obs of the alive points."""
-        self.finish_loop_closing()
+    def map_point_arrays(self, wait: bool = True) -> dict[str, np.ndarray]:
+        """Arrays of ``map_points.npz``: xyz, rgb, n_obs of the alive points (``wait``: as :meth:`trajectory`)."""
+        if wait:
+            self.finish_loop_closing()
         ids = self.map.point_ids()
         return {"xyz": self.map.xyz[ids].copy(), "rgb": self.map.rgb[ids].copy(), "n_obs": self.map.n_obs(ids)}

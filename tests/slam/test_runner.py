@@ -130,3 +130,22 @@ def test_run_sequence_with_screener_saves_labels_and_dynamic_points(seqdir, tmp_
     mp = np.load(out / "map_points.npz")
     uv, _ = seq.camera.project(mp["xyz"])  # frame 0 is the world frame
     assert np.mean(uv[:, 0] >= 640 / 3 - 2) > 0.95
+
+
+def test_flushes_during_a_run_do_not_wait_for_the_loop_closer(seqdir, tmp_path):
+    """The files written every ``flush_every`` frames show the map as it stands: only the final write
+    waits for (and applies) the loop closer's pending corrections, so no frame waits for them."""
+    seq = TumSequence(seqdir, camera="default")
+    system = build_pipeline(Config(), seq.camera)
+    processed, waits = [], []
+    plain = system.finish_loop_closing
+
+    def counting():
+        waits.append(len(processed))
+        plain()
+
+    system.finish_loop_closing = counting
+    summary = run_sequence(seq, tmp_path / "run", system, progress=False, flush_every=2,
+                           on_frame=lambda frame, res: processed.append(frame.index))
+    assert summary["complete"] and len(processed) == 23
+    assert waits and all(n == 23 for n in waits)  # after the last frame only, not at the 12 flushes
