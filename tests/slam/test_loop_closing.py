@@ -314,3 +314,32 @@ def test_only_static_keypoints_feed_the_database():
     assert closer.on_keyframe(kf, mp) is None and 0 in closer.database
     off = LoopCloser(LoopClosingConfig(enabled=False), CAM, BF, vocabulary=voc)
     assert off.on_keyframe(kf, mp) is None and len(off.database) == 0
+
+
+def test_fusion_of_a_correction_at_once_equals_keyframe_by_keyframe(monkeypatch):
+    """``apply_correction`` merges the fused points of every keyframe of the current group in one
+    pass (``fuse_group``): the same map as ORB-SLAM2's keyframe-by-keyframe fusion (``fuse_points``)."""
+    import copy
+
+    from dynslam_lab.slam.loop_closing import closer as closer_module
+    from dynslam_lab.slam.loop_closing.correction import fuse_group, fuse_points
+
+    seen = []
+    plain = closer_module.apply_correction
+
+    def capture(mp, corr):
+        if corr.fuse:
+            seen.append((copy.deepcopy(mp), corr))
+        return plain(mp, corr)
+
+    monkeypatch.setattr(closer_module, "apply_correction", capture)
+    run_loop_scene(400.0, 44, per_kf=300)
+    assert seen
+    mp, corr = seen[0]
+    a, b = copy.deepcopy(mp), copy.deepcopy(mp)
+    n_group = fuse_group(a, corr.fuse)
+    n_each = sum(fuse_points(b.keyframes[int(k)], b, lp, kp) for k, kp, lp in corr.fuse if len(kp))
+    assert len(corr.fuse) > 2 and n_group == n_each > 0
+    np.testing.assert_array_equal(a.alive, b.alive)
+    for k in mp.keyframes:
+        np.testing.assert_array_equal(a.keyframes[k].map_point_ids, b.keyframes[k].map_point_ids)

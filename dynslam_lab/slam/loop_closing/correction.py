@@ -44,7 +44,7 @@ from .config import LoopClosingConfig
 from .verification import match_points_3d
 
 __all__ = ["Snapshot", "Correction", "take_snapshot", "essential_graph", "run_loop_correction", "run_global_ba",
-           "apply_correction", "fuse_points", "LoopCorrector"]
+           "apply_correction", "fuse_points", "fuse_group", "LoopCorrector"]
 
 
 @dataclass
@@ -234,9 +234,9 @@ def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf
                              "gba_cost_before": res.cost_before, "gba_cost_after": res.cost_after})
 
 
-def fuse_points(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> int:
-    """Make keypoints ``kp_idx`` of ``kf`` observe the loop points ``loop_pids``; duplicates merge
-    (ORB-SLAM2 ``SearchAndFuse``). Returns the number of merged points."""
+def _fusion_pairs(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Make the free keypoints ``kp_idx`` of ``kf`` observe the loop points ``loop_pids``; return the
+    merges ``(old, new)`` their taken keypoints call for (another point there than the loop's)."""
     keep = mp.alive[loop_pids]
     loop_pids, kp_idx = loop_pids[keep], kp_idx[keep]
     cur = kf.map_point_ids[kp_idx]
@@ -246,13 +246,42 @@ def fuse_points(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> int:
     kf.map_point_ids[add_kp[new_obs]] = add_pt[new_obs]
     old, new = cur[~free], loop_pids[~free]
     diff = (old != new) & ~np.isin(old, loop_pids) & mp.alive[np.maximum(old, 0)]
-    old, new = old[diff], new[diff]
+    return old[diff], new[diff]
+
+
+def _merge(mp, old: np.ndarray, new: np.ndarray) -> int:
+    """Merge the points ``old`` into ``new`` (each old point once, its first pair; no chains: a point
+    that is merged away is never a target). Returns the number merged."""
     if len(old):
         _, first = np.unique(old, return_index=True)
         old, new = old[first], new[first]
+        keep = ~np.isin(new, old)
+        old, new = old[keep], new[keep]
         replace_points(mp, old, new)
     mp.invalidate()
     return int(len(old))
+
+
+def fuse_points(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> int:
+    """Make keypoints ``kp_idx`` of ``kf`` observe the loop points ``loop_pids``; duplicates merge
+    (ORB-SLAM2 ``SearchAndFuse``). Returns the number of merged points."""
+    return _merge(mp, *_fusion_pairs(kf, mp, np.asarray(loop_pids, np.int64), np.asarray(kp_idx, np.int64)))
+
+
+def fuse_group(mp, fuse: list) -> int:
+    """:func:`fuse_points` for every ``(keyframe id, keypoint indices, loop points)`` of a correction,
+    the merges of all the keyframes done at once (one pass over the observations instead of one per
+    keyframe: the frame loop waits for this). Returns the number of merged points."""
+    olds, news = [], []
+    for k, kp, lp in fuse:
+        kf = mp.keyframes.get(int(k))
+        if kf is not None and len(kp):
+            o, n = _fusion_pairs(kf, mp, np.asarray(lp, np.int64), np.asarray(kp, np.int64))
+            olds.append(o)
+            news.append(n)
+    if not olds:
+        return 0
+    return _merge(mp, np.concatenate(olds), np.concatenate(news))
 
 
 def _keyframe_deltas(mp, corr: Correction) -> dict[int, np.ndarray]:
@@ -282,16 +311,14 @@ def apply_correction(mp, corr: Correction) -> list[int]:
     # their viewing direction turns with it and their distance to it is kept, so the scale range
     # (min/max distance) stays valid without re-gathering every observation (ORB-SLAM2 recomputes
     # them; local mapping does it here for the points it touches next)
-    X = mp.xyz[pts]
-    N = mp.normal[pts]
-    for r in np.unique(ref):  # loop over keyframes
-        if r < 0 or int(r) not in D:
-            continue
-        sel = ref == r
-        X[sel] = transform_points(D[int(r)], X[sel])
-        N[sel] = N[sel] @ D[int(r)][:3, :3].T
-    mp.xyz[pts] = X
-    mp.normal[pts] = N
+    kid = np.fromiter(D, np.int64, len(D))  # sorted
+    if len(kid) and len(pts):
+        Ds = np.stack([D[k] for k in kid.tolist()])
+        at = np.minimum(np.searchsorted(kid, ref), len(kid) - 1)
+        moved = kid[at] == ref  # points whose reference keyframe is in the map (-1: none)
+        P, R = pts[moved], Ds[at[moved], :3, :3]
+        mp.xyz[P] = np.einsum("pij,pj->pi", R, mp.xyz[P]) + Ds[at[moved], :3, 3]
+        mp.normal[P] = np.einsum("pij,pj->pi", R, mp.normal[P])
     if len(corr.point_ids):  # global BA: its points take its positions (the alive ones)
         ok = mp.alive[corr.point_ids]
         mp.xyz[corr.point_ids[ok]] = corr.xyz[ok]
@@ -304,11 +331,7 @@ def apply_correction(mp, corr: Correction) -> list[int]:
             sel = o_kf == k
             same = kf.map_point_ids[o_kp[sel]] == o_pt[sel]
             kf.map_point_ids[o_kp[sel][same]] = -1
-    n_fused = 0
-    for k, kp, lp in corr.fuse:
-        kf = mp.keyframes.get(int(k))
-        if kf is not None and len(kp):
-            n_fused += fuse_points(kf, mp, lp, kp)
+    n_fused = fuse_group(mp, corr.fuse)
     if corr.loop_edge is not None:
         a, b = corr.loop_edge
         if a in mp.keyframes and b in mp.keyframes:
