@@ -237,9 +237,9 @@ class RunRecorder:
 
 
 class _Prepared:
-    """``sequence`` seen through ``system.prepare``: reading frame ``i`` also extracts its ORB features
-    and starts its detection, so the read-ahead thread does that work for frames ``t+1 ..`` while
-    frame ``t`` is tracked (:meth:`~dynslam_lab.slam.system.System.prepare`)."""
+    """``sequence`` seen through ``system.prepare``: reading frame ``i`` also starts its ORB extraction
+    and its detection in the system's worker threads, so that work is done for frames ``t+1 ..``
+    while frame ``t`` is tracked (:meth:`~dynslam_lab.slam.system.System.prepare`)."""
 
     def __init__(self, sequence, system: System) -> None:
         self.sequence, self.system = sequence, system
@@ -285,10 +285,10 @@ def run_sequence(
         holding files dynslam_lab did not write is never touched).
     prefetch : read-ahead of the frames (:class:`~dynslam_lab.datasets.prefetch.PrefetchConfig`;
         ``queue_size=0`` reads in this thread).
-    extract_ahead : the reader thread also extracts each frame's ORB features and starts its detection
-        (:meth:`~dynslam_lab.slam.system.System.prepare`; identical results). ``timing.csv``'s ``orb``
-        is then measured in the reader thread, outside ``total``; what the read-ahead did not hide
-        is in ``read``, and ``wall`` is the frame's whole time.
+    extract_ahead : each frame's ORB extraction and detection start as soon as it is read, in worker
+        threads (:meth:`~dynslam_lab.slam.system.System.prepare`; identical results). ``timing.csv``'s
+        ``orb`` and ``detect`` are then measured in those threads; ``total`` holds only the wait for
+        them, and ``wall`` is the frame's whole time in the run loop.
 
     Returns
     -------

@@ -48,15 +48,19 @@ __all__ = ["System", "FrameResult"]
 
 @dataclass
 class _Prepared:
-    """What :meth:`System.prepare` computed for one frame ahead of :meth:`System.process`: its ORB
-    features (or the exception extraction raised), the extraction's time, and the detection's
-    future (None without a detector)."""
+    """What :meth:`System.prepare` started for one frame ahead of :meth:`System.process`: its ORB
+    extraction (a future of ``(features, ms)``) and its detection (a future of ``(detections, ms)``,
+    None without a detector)."""
 
     frame: Frame
-    feats: Features | None
-    orb_ms: float
-    error: BaseException | None
+    features: Future
     detection: Future | None
+
+    def cancel(self) -> None:
+        """Drop the work not started yet (a frame that will not be processed)."""
+        for f in (self.features, self.detection):
+            if f is not None:
+                f.cancel()
 
 
 @dataclass
@@ -158,8 +162,8 @@ class System:
         self.loop_results: list[Any] = []
         self.loop_edges: list[tuple[int, int]] = []
         self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
-        self._detect_pool: ThreadPoolExecutor | None = None  # one worker: detection beside ORB
-        self._prepared: dict[int, _Prepared] = {}  # frame index -> work done ahead by prepare()
+        self._pools: dict[str, ThreadPoolExecutor] = {}  # one-thread workers: "detect" (beside ORB), "orb" (ahead)
+        self._prepared: dict[int, _Prepared] = {}  # frame index -> work started ahead by prepare()
         self._lock = threading.Lock()  # prepare() runs in the reader thread: guards the two above
 
     def effective_config(self):
@@ -182,32 +186,37 @@ class System:
         detections = self.detector.detect(frame)
         return detections, 1e3 * (time.perf_counter() - t0)
 
+    def _worker(self, name: str) -> ThreadPoolExecutor:
+        """The one-thread pool ``dynslam-NAME`` (made on first use, shut down with the system)."""
+        with self._lock:
+            pool = self._pools.get(name)
+            if pool is None:
+                pool = self._pools[name] = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"dynslam-{name}")
+                weakref.finalize(self, pool.shutdown, wait=False)
+            return pool
+
     def _submit_detection(self, frame: Frame) -> Future | None:
         """Start ``detector.detect(frame)`` in the detection worker (``tracking.overlap_detection``), else None."""
         if self.detector is None or not self.config.tracking.overlap_detection:
             return None
-        with self._lock:
-            if self._detect_pool is None:
-                self._detect_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-detect")
-                weakref.finalize(self, self._detect_pool.shutdown, wait=False)
-            return self._detect_pool.submit(self._detect, frame)
+        return self._worker("detect").submit(self._detect, frame)
+
+    def _extract(self, frame: Frame) -> tuple[Features, float]:
+        """ORB features of one frame, and the extraction's time (ms; in whichever thread runs it)."""
+        t0 = time.perf_counter()
+        feats = extract_features(frame.gray, self.config.orb)
+        return feats, 1e3 * (time.perf_counter() - t0)
 
     def prepare(self, frame: Frame) -> None:
-        """Do ahead what :meth:`process` needs from the images alone: ORB extraction here, and the
-        detection started in the detection worker. Safe to call from another thread while
-        :meth:`process` runs on an earlier frame (the runner's reader thread calls it for frames
-        ``t+1 ..`` while frame ``t`` is tracked: OpenCV's ORB and onnxruntime release the GIL, so
-        they run on the second core). :meth:`process` of this same frame object then uses the work
-        instead of redoing it; the results are identical (extraction and detection depend on the
-        frame only). An extraction error is raised by :meth:`process`, for that frame."""
-        future = self._submit_detection(frame)
-        t0 = time.perf_counter()
-        feats, error = None, None
-        try:
-            feats = extract_features(frame.gray, self.config.orb)
-        except Exception as exc:  # raised again by process(), for this frame only
-            error = exc
-        prep = _Prepared(frame, feats, 1e3 * (time.perf_counter() - t0), error, future)
+        """Start ahead what :meth:`process` needs from the images alone: the ORB extraction in the
+        ``dynslam-orb`` worker thread and the detection in the ``dynslam-detect`` one. Safe to call
+        from another thread while :meth:`process` runs on an earlier frame: the runner's reader
+        thread calls it for frames ``t+1 ..`` as it decodes them, so extraction and detection run
+        while frame ``t`` is tracked (OpenCV's ORB and onnxruntime release the GIL: they use the
+        second core). :meth:`process` of this same frame object then waits for that work instead of
+        redoing it; the results are identical (extraction and detection depend on the frame only).
+        An extraction or detection error is raised by :meth:`process`, for that frame."""
+        prep = _Prepared(frame, self._worker("orb").submit(self._extract, frame), self._submit_detection(frame))
         with self._lock:
             self._prepared[int(frame.index)] = prep
 
@@ -217,12 +226,9 @@ class System:
         with self._lock:
             prep = self._prepared.pop(int(frame.index), None)
             for k in [k for k in self._prepared if k < frame.index]:
-                stale = self._prepared.pop(k)
-                if stale.detection is not None:
-                    stale.detection.cancel()
+                self._prepared.pop(k).cancel()
         if prep is not None and prep.frame is not frame:  # another frame with the same index: not its work
-            if prep.detection is not None:
-                prep.detection.cancel()
+            prep.cancel()
             return None
         return prep
 
@@ -230,23 +236,13 @@ class System:
         """ORB extraction and detection of one frame; with ``tracking.overlap_detection`` the
         detector runs in a worker thread meanwhile (onnxruntime and OpenCV release the GIL), so
         ``t["orb"] + t["detect"]`` may exceed the time both took. After :meth:`prepare` both were
-        done (or started) ahead: ``t["orb"]`` is then the extraction's time in the thread that ran
-        it, outside ``t["total"]``."""
+        started ahead in worker threads: ``t["orb"]`` and ``t["detect"]`` are then their times in
+        those threads, and only the wait for them is in ``t["total"]``."""
         prep = self._take_prepared(frame)
-        if prep is not None:
-            feats, future, t["orb"] = prep.feats, prep.detection, prep.orb_ms
-        else:
-            future = self._submit_detection(frame)
-            t0 = time.perf_counter()
-            feats = None
+        future = prep.detection if prep is not None else self._submit_detection(frame)
         try:
-            if prep is None:
-                feats = extract_features(frame.gray, self.config.orb)
-            elif prep.error is not None:
-                raise prep.error
+            feats, t["orb"] = prep.features.result() if prep is not None else self._extract(frame)
         finally:
-            if prep is None:
-                t["orb"] = 1e3 * (time.perf_counter() - t0)
             detections = None
             if future is not None:  # waited for even when ORB failed: one frame's detection at a time
                 detections, t["detect"] = future.result()

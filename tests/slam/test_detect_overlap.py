@@ -12,6 +12,7 @@ import pytest
 from dynslam_lab.config import Config
 from dynslam_lab.detection.detections import Detections
 from dynslam_lab.dynamic.screening import build_screener
+from dynslam_lab.features.orb import extract_features
 from dynslam_lab.slam.system import System
 from tests.slam import scene
 
@@ -75,7 +76,8 @@ def test_a_failing_detector_fails_that_frame_only():
 
 
 def test_prepare_ahead_in_another_thread_gives_the_same_results():
-    """``System.prepare`` (ORB + detection started ahead, as the runner's reader thread does) gives
+    """``System.prepare`` (ORB and detection started ahead in worker threads, as the runner's reader
+    thread does) gives
     the frame-by-frame results of plain ``process``; a frame whose extraction failed fails alone."""
     frames = scene.frames(40, "xyz")[:8]
     _, _, plain = _run(frames, overlap=True)
@@ -100,8 +102,9 @@ def test_prepare_ahead_in_another_thread_gives_the_same_results():
     assert system._take_prepared(frames[1]) is None and not system._prepared
     # an extraction error surfaces in process(), for that frame only
     bad = replace(frames[2], rgb=np.zeros((2, 2, 3), np.uint8))
+    with pytest.raises(Exception) as direct:
+        extract_features(bad.gray, cfg.orb)
     system.prepare(bad)
-    assert system._prepared[2].error is not None
-    with pytest.raises(type(system._prepared[2].error)):
+    with pytest.raises(type(direct.value)):
         system.process(bad)
     assert system.process(frames[3]).state is not None
