@@ -109,8 +109,13 @@ def _imread(path: str | Path, flags: int, what: str) -> np.ndarray:
     return img
 
 
+_IMREAD_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)  # OpenCV >= 4.10 decodes to RGB order directly
+
+
 def load_rgb(path: str | Path) -> np.ndarray:
     """Read a colour image as ``(H, W, 3)`` uint8 RGB; clear error for a missing or corrupt file."""
+    if _IMREAD_RGB is not None:  # no BGR -> RGB pass over the image
+        return _imread(path, _IMREAD_RGB, "colour image")
     return cv2.cvtColor(_imread(path, cv2.IMREAD_COLOR, "colour image"), cv2.COLOR_BGR2RGB)
 
 
