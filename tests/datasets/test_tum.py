@@ -111,3 +111,15 @@ def test_real_association_files_parse():
     d_ts = np.array([float(r[1]) for r in rows])
     pairs = associate(ts, d_ts, 0.02)
     assert len(pairs) == len(ts)  # the published association pairs every line
+
+
+def test_load_rgb_gives_rgb_channel_order(tmp_path):
+    """Whichever decoding path OpenCV offers (straight to RGB, or BGR then converted): red stays red."""
+    from dynslam_lab.datasets.tum import load_rgb
+
+    bgr = np.zeros((4, 6, 3), np.uint8)
+    bgr[..., 2] = 200  # red in OpenCV's BGR order
+    bgr[0, 0] = (10, 20, 30)
+    cv2.imwrite(str(tmp_path / "red.png"), bgr)
+    rgb = load_rgb(tmp_path / "red.png")
+    assert rgb.shape == (4, 6, 3) and rgb[1, 1].tolist() == [200, 0, 0] and rgb[0, 0].tolist() == [30, 20, 10]
