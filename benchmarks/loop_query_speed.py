@@ -40,7 +40,7 @@ parts are the wait the issue bounds at 200 ms.
 Usage::
 
     python benchmarks/loop_query_speed.py [--keyframes 100 300 1000] [--features 1000]
-    python benchmarks/loop_query_speed.py --stage [--stage-keyframes 1000] [--no-correction]
+    python benchmarks/loop_query_speed.py --stage [--stage-keyframes 1000] [--no-correction | --correction-only]
 """
 
 from __future__ import annotations
@@ -128,7 +128,7 @@ def bench(n_kf: int, sources: list[np.ndarray], rng: np.random.Generator) -> dic
     }
 
 
-def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = True) -> None:
+def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = True, stage: bool = True) -> None:
     """The loop stage per keyframe while a real map (tiled copies of a run's keyframes) grows."""
     import dataclasses
 
@@ -175,11 +175,20 @@ def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = T
                                         new, fresh)
                     lut.update(zip(old_ids[fresh].tolist(), ids.tolist()))
                 mp.update_geometry(new.map_point_ids[new.map_point_ids >= 0])
-                closer.on_keyframe(new, mp)
-                rows.append((len(mp.keyframes), closer.stage_ms[-1][1]))
+                if stage:
+                    closer.on_keyframe(new, mp)
+                    rows.append((len(mp.keyframes), closer.stage_ms[-1][1]))
             copy += 1
     closer.wait(mp)  # the worker's last verifications
     closer.close()
+    if stage:
+        _stage_table(rows, closer, n_keyframes, background)
+    if correction:
+        with blas_single_thread():
+            time_correction(mp, made_from, cfg)
+
+
+def _stage_table(rows: list[tuple[int, float]], closer, n_keyframes: int, background: bool) -> None:
     print(f"verification {'in the worker thread (config default)' if background else 'in the frame loop (--sync)'}")
     n = np.array([r[0] for r in rows])
     ms = np.array([r[1] for r in rows])
@@ -195,9 +204,6 @@ def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = T
     print(f"candidates verified and rejected: {len(closer.rejected)} {reasons}; loops accepted: {len(closer.loops)}")
     for r in closer.loops:  # (none expected: every copy is 20 m away, the drift check refuses it)
         print(f"loop {r.query_kf_id}->{r.loop_kf_id}: " + " ".join(f"{k} {v:.1f} ms" for k, v in r.timings_ms.items()))
-    if correction:
-        with blas_single_thread():
-            time_correction(mp, made_from, cfg)
 
 
 def time_correction(mp, made_from: dict[int, tuple[int, int]], cfg) -> None:
@@ -253,9 +259,12 @@ def main() -> None:
     ap.add_argument("--stage-keyframes", type=int, default=1000)
     ap.add_argument("--sync", action="store_true", help="with --stage: verify in the frame loop (background=False)")
     ap.add_argument("--no-correction", action="store_true", help="with --stage: do not time a loop correction at the end")
+    ap.add_argument("--correction-only", action="store_true",
+                    help="with --stage: grow the map without calling the loop closer, then time the correction only")
     args = ap.parse_args()
     if args.stage:
-        stage_in_run(args.stage_keyframes, background=not args.sync, correction=not args.no_correction)
+        stage_in_run(args.stage_keyframes, background=not args.sync, correction=not args.no_correction,
+                     stage=not args.correction_only)
         return
     rng = np.random.default_rng(args.seed)
     sources, src = source_descriptors(args.features)
