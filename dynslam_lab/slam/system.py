@@ -360,7 +360,8 @@ class System:
                 except Exception as exc:  # the tracked pose must not be lost with it
                     loop = None
                     res.error = f"loop closing failed: {type(exc).__name__}: {exc}"
-                self.map.invalidate()
+                if loop is not None or res.error:  # a loop applied at once (or a failure half-way) changed the map;
+                    self.map.invalidate()  # else the caches (observation table, covisibility) stay valid for tracking
                 t["loop"] += 1e3 * (time.perf_counter() - t0)
                 if loop is not None:
                     res.loop = loop
