@@ -106,18 +106,29 @@ class TrackingConfig:
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
     suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
     suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
+    suspect_trusted_inliers: int = 0  # a pose with at least this many inliers is never suspect (a tracker following a mover keeps few); 0 = off; ours, docs/tracking.md "Graceful failure"
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+    depth_residual: str = "metric"  # motion-only BA's depth row: "stereo" = ORB-SLAM2's u_R = u - bf/z, "metric" = (z_c - z) / sigma_z; ours, docs/tracking.md "Depth in motion-only BA"
+    depth_sigma_0: float = 0.0012  # m, constant term of the keypoint depth noise sigma_z = s0 + s2 (z - zref)^2; Nguyen et al. 2012 (Kinect v1), Eq. 3
+    depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
+    depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
+    depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
-                    "suspect_translation", "suspect_rotation_deg")
+                    "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale")
+        if self.depth_residual not in ("stereo", "metric"):
+            raise ValueError(f"TrackingConfig.depth_residual must be 'stereo' or 'metric', got {self.depth_residual!r}")
+        for name in ("depth_sigma_2", "depth_sigma_zref"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
                         "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap")
         non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
-                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers",
+                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance"):
@@ -210,8 +221,18 @@ class Tracker:
         self.kf_demand_frames: list[int] = []
 
     # -------------------------------------------------------------- helpers
+    def depth_sigma(self, z: np.ndarray) -> np.ndarray:
+        """Standard deviation (m) of keypoint depths ``z`` in the metric depth row: ``depth_sigma_scale``
+        x Nguyen et al. 2012's Kinect v1 axial noise ``s0 + s2 (z - zref)^2``."""
+        c = self.cfg
+        return c.depth_sigma_scale * (c.depth_sigma_0 + c.depth_sigma_2 * (np.asarray(z, float) - c.depth_sigma_zref) ** 2)
+
     def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
-        return Observations.from_keypoints(frame.uv[idx], frame.depth[idx], frame.octave[idx], self.cfg.bf, self.scale_factor)
+        z = frame.depth[idx]
+        z_sigma = None
+        if self.cfg.depth_residual == "metric":
+            z_sigma = np.where(np.isfinite(z), self.depth_sigma(np.nan_to_num(z, nan=1.0)), np.nan)
+        return Observations.from_keypoints(frame.uv[idx], z, frame.octave[idx], self.cfg.bf, self.scale_factor, z_sigma)
 
     def _optimize(self, frame: SlamFrame, T_c_w: np.ndarray) -> int:
         """Motion-only BA over the frame's matches; marks outliers; returns inlier count."""
@@ -482,6 +503,8 @@ class Tracker:
         does not accelerate by centimetres or degrees within a frame; tracking that latched onto a
         moving object does). Ours, for graceful failure (issue: failure is expensive)."""
         dt, dr = self.motion_deviation
+        if 0 < self.cfg.suspect_trusted_inliers <= self.n_inliers:
+            return False
         return dt > self.cfg.suspect_translation or dr > self.cfg.suspect_rotation_deg
 
     def in_bad_stretch(self, frame_index: int) -> bool:

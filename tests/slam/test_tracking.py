@@ -155,3 +155,25 @@ def test_repeated_pattern_options_are_validated():
             TrackingConfig(**bad)
     off = TrackingConfig(motion_ratio=1.0, motion_refine_radius=0.0, match_depth_tolerance=0.0, local_ratio_any_level=False)
     assert off.motion_ratio == 1.0  # every option can be switched off (the ORB-SLAM2 behaviour)
+
+
+def test_depth_residual_options_are_validated_and_reach_the_observations():
+    for bad, field in (({"depth_residual": "icp"}, "depth_residual"), ({"depth_sigma_0": 0.0}, "depth_sigma_0"),
+                       ({"depth_sigma_2": -1.0}, "depth_sigma_2"), ({"depth_sigma_scale": 0.0}, "depth_sigma_scale"),
+                       ({"suspect_trusted_inliers": -1}, "suspect_trusted_inliers")):
+        with pytest.raises(ValueError, match=f"TrackingConfig.{field} must"):
+            TrackingConfig(**bad)
+    # the metric row's sigma is Nguyen et al. 2012's Kinect model times the scale (3 m: 1.40 cm x 1.5)
+    frames = scene.frames(2, "xyz")
+    for kind in ("stereo", "metric"):
+        sys_ = System(CAM, Config(tracking=TrackingConfig(depth_residual=kind)))
+        sys_.process(frames[0])
+        tr = sys_.tracker
+        assert np.isclose(tr.depth_sigma(np.array([3.0]))[0], 1.5 * (0.0012 + 0.0019 * 2.6**2))
+        sf = tr.last
+        idx = np.flatnonzero(np.isfinite(sf.depth))[:20]
+        obs = tr._obs(sf, idx)
+        assert (obs.z_sigma is None) == (kind == "stereo")
+        if kind == "metric":
+            np.testing.assert_allclose(obs.z, sf.depth[idx])
+            np.testing.assert_allclose(obs.z_sigma, tr.depth_sigma(sf.depth[idx]))
