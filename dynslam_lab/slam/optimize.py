@@ -268,9 +268,11 @@ def pose_observation_chi2(X_c: np.ndarray, obs: Observations, camera: PinholeCam
 
 
 def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
-                   bf: float, delta2: float | None) -> tuple[float, tuple]:
+                   bf: float, delta2: float | None, dense=None) -> tuple[float, tuple]:
     """Robust cost of the pose ``(R, t)`` and what its linearisation needs (points behind the camera
-    left out)."""
+    left out); with ``dense`` (a :class:`~.depth_alignment.DenseTerm`) its point-to-plane residuals
+    are added, each point it cannot associate costing as much as one at the association gate (so
+    that losing points never lowers the cost)."""
     RX = X_w @ R.T
     X_c = RX + t
     front = X_c[:, 2] > _MIN_DEPTH
@@ -278,34 +280,44 @@ def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observati
         RX, X_c, obs = RX[front], X_c[front], obs.subset(front)
     r, _ = _pose_residuals(X_c, obs, camera, bf)
     chi2 = np.einsum("ij,ij->i", r, r)
-    return float(huber_cost(chi2, delta2).sum()), (RX, X_c, obs, r, huber_weight(chi2, delta2))
+    cost = float(huber_cost(chi2, delta2).sum())
+    dense_state = None
+    if dense is not None:
+        e, Jd, unmatched = dense.residuals(R, t)
+        cost += float(huber_cost(e * e, delta2).sum()) + float(huber_cost(unmatched, delta2).sum())
+        dense_state = (e, Jd, huber_weight(e * e, delta2))
+    return cost, (RX, X_c, obs, r, huber_weight(chi2, delta2), dense_state)
 
 
 def _lm_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float,
-             delta2: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None);
-    returns ``(R, t, cost)``."""
+             delta2: float | None, iterations: int, dense=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None; optional
+    dense term, :func:`_evaluate_pose`); returns ``(R, t, cost)``."""
     lam = 1e-4
-    cost, (RX, X_c, o, r, w) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2)
+    cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2, dense)
     for _ in range(iterations):
         J = _pose_columns(_pose_point_jacobian(X_c, o, camera, bf), RX).reshape(-1, 6)
         w3 = np.repeat(w, 3)
         H = J.T @ (J * w3[:, None])
         g = J.T @ (w3 * r.ravel())
+        if ds is not None:
+            e, Jd, wd = ds
+            H += Jd.T @ (Jd * wd[:, None])
+            g += Jd.T @ (wd * e)
         while True:
             try:
                 dx = -np.linalg.solve(H + np.diag(lam * np.diag(H) + 1e-12), g)
             except np.linalg.LinAlgError:
                 dx = np.zeros(6)
             R_new, t_new = _rodrigues(dx[:3]) @ R, t + dx[3:]
-            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2)
+            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2, dense)
             if new <= cost or lam > 1e8:
                 break
             lam *= 10.0
         if new > cost:  # no step lowers the cost: converged
             break
         R, t, lam = R_new, t_new, max(lam / 10.0, 1e-9)
-        RX, X_c, o, r, w = state
+        RX, X_c, o, r, w, ds = state
         done = cost - new <= _REL_TOL * cost or np.abs(dx).max() < _STEP_TOL
         cost = new
         if done:
@@ -321,6 +333,7 @@ def optimize_pose(
     bf: float,
     rounds: int = 4,
     max_iterations: int = 10,
+    dense=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Motion-only bundle adjustment (ORB-SLAM2 eq. 2).
 
@@ -330,6 +343,9 @@ def optimize_pose(
     X_w : ``(K, 3)`` world points (metres); obs : their measurements.
     rounds : outlier re-classification rounds (ORB-SLAM2: 4); the last without the Huber kernel.
     max_iterations : Levenberg-Marquardt iterations per round at most (ORB-SLAM2: 10).
+    dense : optional :class:`~.depth_alignment.DenseTerm`, point-to-plane residuals of the frame's
+        depth added to the cost (ours, for frames with few features); its points are re-associated
+        at every evaluation.
 
     Returns
     -------
@@ -339,17 +355,17 @@ def optimize_pose(
     X_w = np.asarray(X_w, float).reshape(-1, 3)
     if len(X_w) != len(obs):
         raise ValueError(f"optimize_pose: {len(X_w)} points but {len(obs)} observations")
-    if len(X_w) < 3:
+    if len(X_w) < 3 and dense is None:
         return np.asarray(T_c_w, float).copy(), np.ones(len(X_w), bool)
     R = nearest_rotation(np.asarray(T_c_w, float)[:3, :3])
     t = np.asarray(T_c_w, float)[:3, 3].copy()
     outlier = np.zeros(len(X_w), bool)
     for rnd in range(rounds):
         use = ~outlier
-        if use.sum() < 3:
+        if use.sum() < 3 and dense is None:
             break
         delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
-        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations)
+        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations, dense)
         _, outlier = pose_observation_chi2(X_w @ R.T + t, obs, camera, bf)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t

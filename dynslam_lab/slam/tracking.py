@@ -52,6 +52,7 @@ from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, transform_points
+from .depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
@@ -115,21 +116,28 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
+    dense_below_inliers: int = 0  # frames whose feature tracking fails or keeps fewer inliers are tracked again with the dense point-to-plane depth term (0 = never); ours, docs/tracking.md "Dense depth term"
+    dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
+    dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
+    dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
-                    "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale")
+                    "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
+                    "dense_max_distance")
+        if not 0 < self.dense_min_fraction <= 1:
+            raise ValueError(f"TrackingConfig.dense_min_fraction must be in (0, 1], got {self.dense_min_fraction}")
         if self.depth_residual not in ("stereo", "metric"):
             raise ValueError(f"TrackingConfig.depth_residual must be 'stereo' or 'metric', got {self.depth_residual!r}")
         for name in ("depth_sigma_2", "depth_sigma_zref"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
-                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap")
+                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride")
         non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
-                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
+                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance"):
             if getattr(self, name) < 0:
@@ -219,6 +227,11 @@ class Tracker:
         self.predicted_T_c_w: np.ndarray | None = None
         self.motion_deviation = (0.0, 0.0)  # (m, deg) from the prediction; zeros without one
         self.kf_demand_frames: list[int] = []
+        # Dense depth term (ours): the term of the frame being re-tracked (None otherwise), the last
+        # frame's vertex/normal grid (frame index, grid), the fraction of depth samples associated.
+        self._dense: DenseTerm | None = None
+        self._dense_grid: tuple[int, DepthGrid] | None = None
+        self.dense_fraction = 0.0
 
     # -------------------------------------------------------------- helpers
     def depth_sigma(self, z: np.ndarray) -> np.ndarray:
@@ -238,10 +251,11 @@ class Tracker:
         """Motion-only BA over the frame's matches; marks outliers; returns inlier count."""
         idx = np.flatnonzero(frame.map_point_ids >= 0)
         frame.outlier[:] = False
-        if len(idx) < 3:
+        if len(idx) < 3 and self._dense is None:
             frame.T_w_c = se3_inv(T_c_w)
             return 0
-        T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf)
+        T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf,
+                               dense=self._dense)
         frame.T_w_c = se3_inv(T)
         frame.outlier[idx[out]] = True
         return int((~out).sum())
@@ -268,24 +282,11 @@ class Tracker:
             return False
         T_pred = self.predict_pose()
         self.predicted_T_c_w = T_pred
-        lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
-        pids = last.map_point_ids[lidx]
-        alive = self.map.alive[pids]
-        lidx, pids = lidx[alive], pids[alive]
-        if len(pids) < self.cfg.motion_min_matches:
-            return False
-        uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
-        vis = (z > 0) & self.camera.in_image(uv)
-        lidx, pids, uv, z = lidx[vis], pids[vis], uv[vis], z[vis]
-        frame.map_point_ids[:] = -1
         cfg = self.cfg
-        for factor in (1.0, 2.0):
-            m = self._search_last(frame, last, lidx, pids, uv, z, factor * cfg.motion_radius, cfg.motion_ratio)
-            if len(m) >= cfg.motion_min_matches:
-                break
-        if len(m) < cfg.motion_min_matches:
+        found = self._match_last_frame(frame, T_pred, cfg.motion_min_matches)
+        if found is None:
             return False
-        frame.map_point_ids[m.idx_b] = pids[m.idx_a]
+        lidx, pids = found
         n = self._optimize(frame, T_pred)
         if cfg.motion_refine_radius > 0 and n >= cfg.min_track_inliers:
             # Second pass (ours): the pose from the unambiguous matches is accurate to a pixel or
@@ -300,6 +301,70 @@ class Tracker:
                 n = self._optimize(frame, T1)
         self._discard_outliers(frame)
         return n >= cfg.min_track_inliers
+
+    def _match_last_frame(self, frame: SlamFrame, T_pred: np.ndarray, min_matches: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Project the last frame's matched points with ``T_pred`` and search them in ``frame`` (radius
+        doubled when fewer than ``min_matches``); sets ``frame.map_point_ids``. Returns the last frame's
+        keypoints and point ids searched, or None with fewer than ``min_matches`` points or matches."""
+        last, cfg = self.last, self.cfg
+        lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
+        pids = last.map_point_ids[lidx]
+        alive = self.map.alive[pids]
+        lidx, pids = lidx[alive], pids[alive]
+        frame.map_point_ids[:] = -1
+        if len(pids) < min_matches:
+            return None
+        uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
+        vis = (z > 0) & self.camera.in_image(uv)
+        lidx, pids, uv, z = lidx[vis], pids[vis], uv[vis], z[vis]
+        for factor in (1.0, 2.0):
+            m = self._search_last(frame, last, lidx, pids, uv, z, factor * cfg.motion_radius, cfg.motion_ratio)
+            if len(m) >= max(min_matches, 1):
+                break
+        if len(m) < min_matches:
+            return None
+        frame.map_point_ids[m.idx_b] = pids[m.idx_a]
+        return lidx, pids
+
+    def _dense_term(self, frame: SlamFrame) -> DenseTerm | None:
+        """The point-to-plane term of ``frame``'s depth against the last frame's (module
+        :mod:`.depth_alignment`), or None without both depth images."""
+        last, cfg = self.last, self.cfg
+        if frame.depth_image is None or last is None or last.depth_image is None or last.T_w_c is None:
+            return None
+        if self._dense_grid is None or self._dense_grid[0] != last.index:
+            self._dense_grid = (last.index, vertex_normal_grid(last.depth_image, self.camera, cfg.dense_stride))
+        X = self.camera.backproject_depth(frame.depth_image, cfg.dense_stride).reshape(-1, 3)
+        X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
+        if len(X) < 100:
+            return None
+        return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
+                         cfg.dense_max_distance)
+
+    def track_dense(self, frame: SlamFrame) -> bool:
+        """Track ``frame`` again with the dense depth term in every motion-only BA (ours, for frames
+        with few features): the last frame's points searched around the prediction (no minimum), the
+        pose from them and the depth, then the local map with the depth term too. Accepted with
+        ``min_track_inliers`` feature inliers and ``dense_min_fraction`` of the depth samples associated."""
+        cfg = self.cfg
+        term = self._dense_term(frame)
+        if term is None:
+            return False
+        T_pred = self.predict_pose()
+        if T_pred is None:
+            T_pred = se3_inv(self.last.T_w_c)
+        self._dense = term
+        try:
+            self._match_last_frame(frame, T_pred, 0)
+            self._optimize(frame, T_pred)
+            self._discard_outliers(frame)
+            n = self.track_local_map(frame)
+        finally:
+            self._dense = None
+        T = se3_inv(frame.T_w_c)
+        self.dense_fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
+        self.n_inliers = n
+        return n >= cfg.min_track_inliers and self.dense_fraction >= cfg.dense_min_fraction
 
     def _search_last(self, frame: SlamFrame, last: SlamFrame, lidx: np.ndarray, pids: np.ndarray, uv: np.ndarray,
                      z: np.ndarray, radius: float, ratio: float) -> Matches:
@@ -474,6 +539,15 @@ class Tracker:
                 need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
                 ok = n >= need
                 self.n_inliers = n
+            if cfg.dense_below_inliers > 0 and (not ok or self.n_inliers < cfg.dense_below_inliers):
+                kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers, self.ref_kf)
+                frame.outlier[:] = False
+                if self.track_dense(frame):
+                    ok, self.method = True, "dense"
+                elif ok:  # the feature-only pose stands
+                    frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers, self.ref_kf = kept
+                else:
+                    self.method = ""
             state = TrackState.OK if ok else TrackState.LOST
         else:
             ok = self.relocalize(frame)
