@@ -87,7 +87,9 @@ class DenseTerm:
     ref: DepthGrid
     T_r_w: np.ndarray
     camera: PinholeCamera
-    max_distance: float = 0.05  # m; larger point-to-plane or depth gaps are no association
+    max_distance: float = 0.05  # m; larger point-to-plane distances are no association
+    T_prior: np.ndarray | None = None  # (4, 4) T_c_w the pose is weakly held to (the motion prediction), or None
+    prior_sigma: tuple[float, float] = (0.02, 1.0)  # (m, deg) of that prior
 
     def associate(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For the pose ``T_c_w = (R, t)``: indices of the associated points, their normals ``n`` in the
@@ -97,16 +99,19 @@ class DenseTerm:
         R_rc = R_r @ R.T
         t_rc = t_r - R_rc @ t
         Y = self.X @ R_rc.T + t_rc
-        uv, z = self.camera.project(Y)
-        s = self.ref.stride
+        cam, s = self.camera, self.ref.stride
         h, w = self.ref.V.shape[:2]
-        with np.errstate(invalid="ignore"):
-            j = np.round(uv[:, 0] / s).astype(np.int64, copy=False) if len(uv) else np.zeros(0, np.int64)
-            i = np.round(uv[:, 1] / s).astype(np.int64, copy=False) if len(uv) else np.zeros(0, np.int64)
-        ok = (z > 0) & np.isfinite(uv).all(axis=1) & (i >= 0) & (i < h) & (j >= 0) & (j < w)
-        idx = np.flatnonzero(ok)
-        V = self.ref.V[i[idx], j[idx]]
-        N = self.ref.N[i[idx], j[idx]]
+        z = Y[:, 2]
+        front = z > 1e-6
+        inv_z = 1.0 / np.where(front, z, 1.0)
+        # nearest grid cell of the projection (pixel / stride, rounded)
+        j = np.floor((cam.fx * Y[:, 0] * inv_z + cam.cx) / s + 0.5)
+        i = np.floor((cam.fy * Y[:, 1] * inv_z + cam.cy) / s + 0.5)
+        idx = np.flatnonzero(front & (i >= 0) & (i < h) & (j >= 0) & (j < w))
+        i, j = i[idx].astype(np.int64), j[idx].astype(np.int64)
+        cell = i * w + j
+        V = self.ref.V.reshape(-1, 3)[cell]
+        N = self.ref.N.reshape(-1, 3)[cell]
         diff = Y[idx] - V
         d = np.einsum("ij,ij->i", N, diff)
         good = np.isfinite(d) & (np.abs(d) <= self.max_distance)
@@ -127,4 +132,28 @@ class DenseTerm:
         J = np.empty((len(idx), 6))
         J[:, :3] = np.cross(m, p) * inv_s[:, None]
         J[:, 3:] = -m * inv_s[:, None]
-        return d * inv_s, J, gate
+        e = d * inv_s
+        if self.T_prior is not None:
+            e_p, J_p = self.prior_residuals(R, t)
+            e, J = np.concatenate([e, e_p]), np.vstack([J, J_p])
+        return e, J, gate
+
+    def prior_residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Six residuals holding ``T_c_w = (R, t)`` to ``T_prior = (R_p, t_p)``: with ``D = T T_prior^-1 =
+        (R R_p^T, t - R R_p^T t_p)``, ``e = (Log(R R_p^T) / s_r, (t - q) / s_t)``, ``q = R R_p^T t_p``; to
+        first order ``de/d omega = (I / s_r, [q]_x / s_t)`` and ``de/d tau = (0, I / s_t)``. It fixes the
+        directions the planes leave free (a slide along a wall) when few features are matched."""
+        s_t, s_r = self.prior_sigma[0], np.radians(self.prior_sigma[1])
+        R_p, t_p = self.T_prior[:3, :3], self.T_prior[:3, 3]
+        dR = R @ R_p.T
+        q = dR @ t_p
+        c = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
+        th = np.arccos(c)
+        w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+        w = w * (0.5 if th < 1e-8 else th / (2.0 * np.sin(th)))
+        e = np.concatenate([w / s_r, (t - q) / s_t])
+        J = np.zeros((6, 6))
+        J[:3, :3] = np.eye(3) / s_r
+        J[3:, :3] = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]]) / s_t
+        J[3:, 3:] = np.eye(3) / s_t
+        return e, J

@@ -120,12 +120,15 @@ class TrackingConfig:
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
     dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
     dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
+    dense_min_inliers: int = 3  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
+    dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
+    dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
-                    "dense_max_distance")
+                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
         if not 0 < self.dense_min_fraction <= 1:
             raise ValueError(f"TrackingConfig.dense_min_fraction must be in (0, 1], got {self.dense_min_fraction}")
         if self.depth_residual not in ("stereo", "metric"):
@@ -137,7 +140,8 @@ class TrackingConfig:
                         "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride")
         non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
-                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers")
+                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
+                        "dense_min_inliers")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance"):
             if getattr(self, name) < 0:
@@ -338,8 +342,11 @@ class Tracker:
         X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
         if len(X) < 100:
             return None
+        T_pred = self.predict_pose()
+        if T_pred is None:
+            T_pred = se3_inv(last.T_w_c)
         return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
-                         cfg.dense_max_distance)
+                         cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
 
     def track_dense(self, frame: SlamFrame) -> bool:
         """Track ``frame`` again with the dense depth term in every motion-only BA (ours, for frames
@@ -350,9 +357,7 @@ class Tracker:
         term = self._dense_term(frame)
         if term is None:
             return False
-        T_pred = self.predict_pose()
-        if T_pred is None:
-            T_pred = se3_inv(self.last.T_w_c)
+        T_pred = term.T_prior
         self._dense = term
         try:
             self._match_last_frame(frame, T_pred, 0)
@@ -364,7 +369,7 @@ class Tracker:
         T = se3_inv(frame.T_w_c)
         self.dense_fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
         self.n_inliers = n
-        return n >= cfg.min_track_inliers and self.dense_fraction >= cfg.dense_min_fraction
+        return n >= cfg.dense_min_inliers and self.dense_fraction >= cfg.dense_min_fraction
 
     def _search_last(self, frame: SlamFrame, last: SlamFrame, lidx: np.ndarray, pids: np.ndarray, uv: np.ndarray,
                      z: np.ndarray, radius: float, ratio: float) -> Matches:
@@ -623,5 +628,7 @@ class Tracker:
         n = self.n_inliers
         c1 = since >= cfg.kf_max_frames or since >= cfg.kf_min_frames
         c1c = n < 0.25 * n_ref or need_close
-        c2 = (n < ratio * n_ref or need_close) and n > cfg.kf_min_inliers
+        # a dense-tracked frame (few features, ours) may make a keyframe with fewer inliers: else the map
+        # cannot grow over a stretch of plain walls
+        c2 = (n < ratio * n_ref or need_close) and (n > cfg.kf_min_inliers or self.method == "dense")
         return bool((c1 or c1c) and c2)

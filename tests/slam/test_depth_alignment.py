@@ -91,3 +91,25 @@ def test_dense_term_recovers_the_pose_with_two_feature_matches():
     assert np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1))) < 0.05
     T_f, _ = optimize_pose(T0, X_w, obs, CAM, 40.0)  # features alone: the pose stays where it started
     assert np.linalg.norm((T_f @ T_w_cur)[:3, 3]) > 0.02
+
+
+def test_prior_residuals_match_finite_differences_and_vanish_at_the_prior():
+    T_p = make_pose(so3_exp([0.1, -0.2, 0.05]), [0.3, -0.1, 1.2])
+    term = DenseTerm(np.zeros((0, 3)), np.zeros(0), vertex_normal_grid(np.zeros((48, 64), np.float32), CAM, 8),
+                     np.eye(4), CAM, T_prior=T_p, prior_sigma=(0.02, 1.0))
+    e0, _ = term.prior_residuals(T_p[:3, :3], T_p[:3, 3])
+    assert np.abs(e0).max() < 1e-9
+    T = make_pose(so3_exp([0.004, 0.002, -0.003]), [0.01, -0.02, 0.005]) @ T_p
+    R, t = T[:3, :3], T[:3, 3]
+    e, J = term.prior_residuals(R, t)
+    # by hand: the rotation part is the rotation vector of T T_p^-1 over 1 deg, the translation its
+    # translation over 2 cm
+    np.testing.assert_allclose(e[:3], np.array([0.004, 0.002, -0.003]) / np.radians(1.0), rtol=1e-6)
+    np.testing.assert_allclose(e[3:], (T @ se3_inv(T_p))[:3, 3] / 0.02, rtol=1e-9)
+    eps = 1e-7
+
+    def f(dx):
+        return term.prior_residuals(opt._rodrigues(dx[:3]) @ R, t + dx[3:])[0]
+
+    J_num = np.stack([(f(d) - f(-d)) / (2 * eps) for d in np.eye(6) * eps], axis=1)
+    np.testing.assert_allclose(J, J_num, atol=2e-2 * np.abs(J_num).max())  # first order at a 0.3 deg error
