@@ -51,7 +51,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
-from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, transform_points
+from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
 from .depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
@@ -59,6 +59,9 @@ from .map import Map
 from .optimize import Observations, optimize_pose
 
 __all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pose_distance"]
+
+
+_DENSE_KF_MIN_INLIERS = 5  # feature inliers a dense-tracked keyframe needs to be tied to the map (local BA needs observations)
 
 
 def pose_distance(T: np.ndarray) -> tuple[float, float]:
@@ -75,6 +78,7 @@ class TrackingConfig:
     min_depth: float = 0.1  # keypoint depths below this are missing (m); ours (sensor minimum)
     max_depth: float = 8.0  # keypoint depths above this are missing (m); ours (Kinect range)
     init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
+    velocity_per_second: bool = True  # scale the constant-velocity motion by the ratio of the frame intervals (dt / dt_last): frames 30 and 40 ms apart (the synthetic sequences, TUM's jitter) are not predicted one step each; False = ORB-SLAM2 (one step per frame); ours, docs/tracking.md "Motion model in time"
     motion_radius: float = 15.0  # motion-model search radius at level 0 (px); ORB-SLAM2 RGB-D th: 15
     motion_min_matches: int = 20  # matches needed before optimising (else radius x2); ORB-SLAM2: 20
     motion_ratio: float = 1.0  # best / second-best Hamming distance in the motion-model search, second candidate on any level (1 = off, ORB-SLAM2: no ratio test there); ours, off: docs/tracking.md "Repeated patterns"
@@ -149,7 +153,7 @@ class TrackingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("overlap_detection", "local_ratio_any_level"):
+        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in at_least_one:
@@ -216,6 +220,7 @@ class Tracker:
         self.state = TrackState.NOT_INITIALIZED
         self.last: SlamFrame | None = None
         self.velocity: np.ndarray | None = None  # T_c_w(last) @ T_w_c(before last)
+        self.velocity_dt = 0.0  # s between the two frames of the velocity (0 = unknown)
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -(10**9)
         self.last_reloc_frame = -(10**9)
@@ -271,12 +276,22 @@ class Tracker:
     def _available(self, frame: SlamFrame) -> np.ndarray:
         return frame.static & (frame.map_point_ids < 0)
 
-    def predict_pose(self) -> np.ndarray | None:
+    def predict_pose(self, timestamp: float | None = None) -> np.ndarray | None:
         """The constant-velocity prediction ``T_c_w = V T_c_w^last`` for the next frame (``V`` the last
-        frame-to-frame motion in the camera frame, ``T_c_w^last (T_c_w^before)^-1``), or None."""
+        frame-to-frame motion in the camera frame, ``T_c_w^last (T_c_w^before)^-1``), or None.
+
+        With ``velocity_per_second`` and the frame's ``timestamp``, ``V`` is scaled to the frame's interval:
+        ``V^s`` with ``s = (timestamp - t_last) / dt_V`` (rotation vector and translation scaled by ``s``; ours)."""
         if self.velocity is None or self.last is None or self.last.T_w_c is None:
             return None
-        return self.velocity @ se3_inv(self.last.T_w_c)
+        V = self.velocity
+        if self.cfg.velocity_per_second and timestamp is not None and self.velocity_dt > 0:
+            s = (float(timestamp) - self.last.timestamp) / self.velocity_dt
+            if 0 < s < 10 and s != 1.0:
+                V = np.eye(4)
+                V[:3, :3] = so3_exp(s * so3_log(self.velocity[:3, :3]))
+                V[:3, 3] = s * self.velocity[:3, 3]
+        return V @ se3_inv(self.last.T_w_c)
 
     # --------------------------------------------------------------- stages
     def track_motion_model(self, frame: SlamFrame) -> bool:
@@ -284,7 +299,7 @@ class Tracker:
         last = self.last
         if last is None or self.velocity is None or last.T_w_c is None:
             return False
-        T_pred = self.predict_pose()
+        T_pred = self.predict_pose(frame.timestamp)
         self.predicted_T_c_w = T_pred
         cfg = self.cfg
         found = self._match_last_frame(frame, T_pred, cfg.motion_min_matches)
@@ -342,7 +357,7 @@ class Tracker:
         X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
         if len(X) < 100:
             return None
-        T_pred = self.predict_pose()
+        T_pred = self.predict_pose(frame.timestamp)
         if T_pred is None:
             T_pred = se3_inv(last.T_w_c)
         return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
@@ -566,6 +581,7 @@ class Tracker:
                 V = se3_inv(frame.T_w_c) @ self.last.T_w_c
                 V[:3, :3] = nearest_rotation(V[:3, :3])
                 self.velocity = V
+                self.velocity_dt = frame.timestamp - self.last.timestamp
             else:
                 self.velocity = None
             self.last = frame
@@ -628,7 +644,9 @@ class Tracker:
         n = self.n_inliers
         c1 = since >= cfg.kf_max_frames or since >= cfg.kf_min_frames
         c1c = n < 0.25 * n_ref or need_close
-        # a dense-tracked frame (few features, ours) may make a keyframe with fewer inliers: else the map
-        # cannot grow over a stretch of plain walls
-        c2 = (n < ratio * n_ref or need_close) and (n > cfg.kf_min_inliers or self.method == "dense")
+        # a dense-tracked frame (few features, ours) may make a keyframe with fewer inliers (a few, to tie it
+        # to the map), or none when it sees many new close points (the map starts again from the pose the
+        # depth gave): else the map cannot grow over a stretch of plain walls
+        enough = n > cfg.kf_min_inliers or (self.method == "dense" and (n >= _DENSE_KF_MIN_INLIERS or need_close))
+        c2 = (n < ratio * n_ref or need_close) and enough
         return bool((c1 or c1c) and c2)
