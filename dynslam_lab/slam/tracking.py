@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
@@ -115,16 +116,18 @@ class TrackingConfig:
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
-    depth_residual: str = "metric"  # motion-only BA's depth row: "stereo" = ORB-SLAM2's u_R = u - bf/z, "metric" = (z_c - z) / sigma_z; ours, docs/tracking.md "Depth in motion-only BA"
+    depth_residual: str = "stereo"  # motion-only BA's depth row: "stereo" = ORB-SLAM2's u_R = u - bf/z, "metric" = (z_c - z) / sigma_z; ours, docs/tracking.md "Depth in motion-only BA"
     depth_sigma_0: float = 0.0012  # m, constant term of the keypoint depth noise sigma_z = s0 + s2 (z - zref)^2; Nguyen et al. 2012 (Kinect v1), Eq. 3
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense_below_inliers: int = 0  # frames whose feature tracking fails or keeps fewer inliers are tracked again with the dense point-to-plane depth term (0 = never); ours, docs/tracking.md "Dense depth term"
+    dense: str = "always"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
+    dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
     dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
     dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
-    dense_min_inliers: int = 3  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
+    dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
     dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
@@ -133,6 +136,10 @@ class TrackingConfig:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
                     "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
+        if self.dense not in ("off", "weak", "always"):
+            raise ValueError(f"TrackingConfig.dense must be 'off', 'weak' or 'always', got {self.dense!r}")
+        if not self.dense_mask_radius >= 0:
+            raise ValueError(f"TrackingConfig.dense_mask_radius must be >= 0, got {self.dense_mask_radius}")
         if not 0 < self.dense_min_fraction <= 1:
             raise ValueError(f"TrackingConfig.dense_min_fraction must be in (0, 1], got {self.dense_min_fraction}")
         if self.depth_residual not in ("stereo", "metric"):
@@ -352,8 +359,11 @@ class Tracker:
         if frame.depth_image is None or last is None or last.depth_image is None or last.T_w_c is None:
             return None
         if self._dense_grid is None or self._dense_grid[0] != last.index:
-            self._dense_grid = (last.index, vertex_normal_grid(last.depth_image, self.camera, cfg.dense_stride))
-        X = self.camera.backproject_depth(frame.depth_image, cfg.dense_stride).reshape(-1, 3)
+            grid = vertex_normal_grid(last.depth_image, self.camera, cfg.dense_stride)
+            grid.N[self._dynamic_cells(last, grid.N.shape[:2])] = np.nan
+            self._dense_grid = (last.index, grid)
+        X = self.camera.backproject_depth(frame.depth_image, cfg.dense_stride)
+        X = X[~self._dynamic_cells(frame, X.shape[:2])]
         X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
         if len(X) < 100:
             return None
@@ -362,6 +372,21 @@ class Tracker:
             T_pred = se3_inv(last.T_w_c)
         return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
                          cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
+
+    def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int]) -> np.ndarray:
+        """``(h, w)`` bool over the dense grid: cells within ``dense_mask_radius`` px of a keypoint the
+        screening judged dynamic (vectorised: the keypoints' cells, dilated by a disc)."""
+        out = np.zeros(shape, bool)
+        dyn = frame.uv[~frame.static]
+        if not len(dyn) or self.cfg.dense_mask_radius <= 0:
+            return out
+        s = self.cfg.dense_stride
+        i = np.clip(np.round(dyn[:, 1] / s).astype(np.int64), 0, shape[0] - 1)
+        j = np.clip(np.round(dyn[:, 0] / s).astype(np.int64), 0, shape[1] - 1)
+        out[i, j] = True
+        r = int(np.ceil(self.cfg.dense_mask_radius / s))
+        disc = (np.add.outer(np.arange(-r, r + 1) ** 2, np.arange(-r, r + 1) ** 2) <= r * r).astype(np.uint8)
+        return cv2.dilate(out.astype(np.uint8), disc) > 0
 
     def track_dense(self, frame: SlamFrame) -> bool:
         """Track ``frame`` again with the dense depth term in every motion-only BA (ours, for frames
@@ -373,6 +398,8 @@ class Tracker:
         if term is None:
             return False
         T_pred = term.T_prior
+        if self.velocity is not None:
+            self.predicted_T_c_w = T_pred
         self._dense = term
         try:
             self._match_last_frame(frame, T_pred, 0)
@@ -548,26 +575,20 @@ class Tracker:
         self.predicted_T_c_w = None
         self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
-            if self.velocity is not None and self.track_motion_model(frame):
-                ok, self.method = True, "motion_model"
+            if cfg.dense == "always" and self.track_dense(frame):
+                ok, self.method = True, "dense"
             else:
-                frame.map_point_ids[:] = -1
-                ok = self.track_reference_keyframe(frame)
-                self.method = "reference_keyframe" if ok else ""
-            if ok:
-                n = self.track_local_map(frame)
-                need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
-                ok = n >= need
-                self.n_inliers = n
-            if cfg.dense_below_inliers > 0 and (not ok or self.n_inliers < cfg.dense_below_inliers):
-                kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers, self.ref_kf)
-                frame.outlier[:] = False
-                if self.track_dense(frame):
-                    ok, self.method = True, "dense"
-                elif ok:  # the feature-only pose stands
-                    frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers, self.ref_kf = kept
-                else:
-                    self.method = ""
+                ok = self._track_features(frame)
+                if cfg.dense == "weak" and (not ok or self.n_inliers < cfg.dense_below_inliers):
+                    kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers, self.ref_kf,
+                            self.method)
+                    frame.outlier[:] = False
+                    if self.track_dense(frame):
+                        ok, self.method = True, "dense"
+                    elif ok:  # the feature-only pose stands
+                        frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers, self.ref_kf, self.method = kept
+                    else:
+                        self.method = ""
             state = TrackState.OK if ok else TrackState.LOST
         else:
             ok = self.relocalize(frame)
@@ -591,6 +612,22 @@ class Tracker:
             self.velocity = None
         self.state = state
         return state
+
+    def _track_features(self, frame: SlamFrame) -> bool:
+        """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""
+        cfg = self.cfg
+        if self.velocity is not None and self.track_motion_model(frame):
+            ok, self.method = True, "motion_model"
+        else:
+            frame.map_point_ids[:] = -1
+            ok = self.track_reference_keyframe(frame)
+            self.method = "reference_keyframe" if ok else ""
+        if ok:
+            n = self.track_local_map(frame)
+            need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
+            ok = n >= need
+            self.n_inliers = n
+        return ok
 
     @property
     def suspect(self) -> bool:

@@ -99,7 +99,7 @@ def test_tracker_follows_rendered_camera_and_ignores_dynamic_keypoints():
     assert all(r.state == TrackState.OK for r in results)
     err = [np.linalg.norm(r.T_w_c[:3, 3] - f.T_w_c_gt[:3, 3]) for r, f in zip(results, frames)]
     assert max(err) < 0.025  # a third of the view removed: measured 1.7 cm at worst (full view: 5 mm)
-    assert results[0].method == "initialization" and results[5].method == "motion_model"
+    assert results[0].method == "initialization" and results[5].method == ("dense" if Config().tracking.dense == "always" else "motion_model")
     assert all(r.n_dynamic > 100 for r in results)
     # no dynamic keypoint was matched or made a map point: every observation is in the right two thirds
     for kf in sys_.map.keyframes.values():
