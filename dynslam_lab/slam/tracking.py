@@ -4,7 +4,9 @@
 For each new frame, with only the keypoints the screening stage judged static:
 
 1. **Motion model** (Sec. V-B): predict ``T_c_w = V T_c_w^{last}`` with the constant velocity
-   ``V = T_c_w^{last} (T_c_w^{before last})^{-1}``; project the map points matched in the last
+   ``V = T_c_w^{last} (T_c_w^{before last})^{-1}`` (ours: scaled to the frame's interval, ``V^s`` with
+   ``s = dt / dt_V``, ``velocity_per_second``; frames 30 and 40 ms apart are not one step each);
+   project the map points matched in the last
    frame and search each within ``r = th * scale_factor**octave`` pixels (``th = 15`` for RGB-D),
    on the keypoint's pyramid level +-1, Hamming distance <= 100, orientation consistent;
    doubling the radius once if fewer than 20 matches. Ours, for repeated patterns, all off by
@@ -37,6 +39,12 @@ For each new frame, with only the keypoints the screening stage judged static:
    queried with the frame's bag-of-words vector (``DetectRelocalizationCandidates``; brute force
    over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
+
+**Dense depth term** (ours, ``dense``; :mod:`.depth_alignment`): by default every frame is tracked with
+the point-to-plane error of its depth image against the last frame's in each motion-only BA (plus a
+weak prior to the motion prediction), so plain walls (few features) and repeated patterns (aliased
+matches) keep a pose; depth samples near keypoints judged dynamic are left out. ``"weak"`` uses it only
+for frames the features fail, ``"off"`` is ORB-SLAM2.
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
