@@ -40,11 +40,12 @@ For each new frame, with only the keypoints the screening stage judged static:
    over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
-**Dense depth term** (ours, ``dense``; :mod:`.depth_alignment`): by default every frame is tracked with
-the point-to-plane error of its depth image against the last frame's in each motion-only BA (plus a
-weak prior to the motion prediction), so plain walls (few features) and repeated patterns (aliased
-matches) keep a pose; depth samples near keypoints judged dynamic are left out. ``"weak"`` uses it only
-for frames the features fail, ``"off"`` is ORB-SLAM2.
+**Dense depth term** (ours, ``dense``, off by default: docs/tracking.md "Dense depth term" has the
+measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
+its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
+prediction), ``"weak"`` only frames the features fail or keep few inliers, so plain walls (few
+features) and repeated patterns (aliased matches) keep a pose; depth samples near keypoints judged
+dynamic are left out. ``"off"`` is ORB-SLAM2.
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
@@ -129,7 +130,7 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense: str = "always"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense: str = "off"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
