@@ -6,7 +6,7 @@ screening stage, and the map point each keypoint is matched to (``-1`` for none)
 
 RGB-D keypoints are treated as in ORB-SLAM2 (Sec. III-A): a keypoint with depth ``z`` gets a
 virtual right-image coordinate ``u_R = u - bf / z`` (``bf`` = virtual baseline (m) times focal
-length (px); ``Camera.bf = 40`` in ORB-SLAM2's TUM settings), so that one residual form (u, v, u_R) serves
+length (px); ``Camera.bf = 40`` in ORB-SLAM2's TUM settings, 400 here: ``TrackingConfig.bf``), so that one residual form (u, v, u_R) serves
 reprojection and depth errors alike. Keypoints closer than ``th_depth * bf / fx`` metres are
 "close" (their depth is trusted); farther ones are treated as monocular in ORB-SLAM2.
 

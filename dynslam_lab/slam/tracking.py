@@ -83,8 +83,8 @@ def pose_distance(T: np.ndarray) -> tuple[float, float]:
 class TrackingConfig:
     """Parameters of tracking (ORB-SLAM2 ``Tracking.cc`` / TUM settings unless noted)."""
 
-    bf: float = 40.0  # virtual stereo baseline x fx (px*m) for the u_R residual; ORB-SLAM2 TUM Camera.bf: 40
-    th_depth: float = 40.0  # close points: depth < th_depth * bf / fx (m); ORB-SLAM2 ThDepth: 40
+    bf: float = 400.0  # virtual stereo baseline x fx (px*m) of the u_R residual, i.e. the weight of a keypoint's depth (a depth error dz costs bf dz / z^2 px); ours, 10x ORB-SLAM2's TUM Camera.bf (40, under which a 5 cm error at 3 m costs 0.2 px and local BA slid keyframes by 14 cm): docs/tracking.md "The weight of depth"
+    th_depth: float = 4.0  # close points: depth < th_depth * bf / fx (m; 3.05 m at fx 525, as ORB-SLAM2's ThDepth 40 with bf 40)
     min_depth: float = 0.1  # keypoint depths below this are missing (m); ours (sensor minimum)
     max_depth: float = 8.0  # keypoint depths above this are missing (m); ours (Kinect range)
     init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
