@@ -6,7 +6,7 @@ screening stage, and the map point each keypoint is matched to (``-1`` for none)
 
 RGB-D keypoints are treated as in ORB-SLAM2 (Sec. III-A): a keypoint with depth ``z`` gets a
 virtual right-image coordinate ``u_R = u - bf / z`` (``bf`` = virtual baseline (m) times focal
-length (px); ``Camera.bf = 40`` in ORB-SLAM2's TUM settings), so that one residual form (u, v, u_R) serves
+length (px); ``Camera.bf = 40`` in ORB-SLAM2's TUM settings, 400 here: ``TrackingConfig.bf``), so that one residual form (u, v, u_R) serves
 reprojection and depth errors alike. Keypoints closer than ``th_depth * bf / fx`` metres are
 "close" (their depth is trusted); farther ones are treated as monocular in ORB-SLAM2.
 
@@ -56,6 +56,8 @@ class SlamFrame:
     map_point_ids : ``(N,)`` int64 matched map point per keypoint, ``-1`` for none.
     outlier : ``(N,)`` bool, matches rejected by the last pose optimisation.
     T_w_c : ``(4, 4)`` pose (camera to world) once tracked, else None.
+    depth_image : ``(H, W)`` the frame's depth image (m, 0 = none; the frame's own array, not a copy)
+        for the dense depth term of tracking, or None.
     """
 
     index: int
@@ -68,6 +70,7 @@ class SlamFrame:
     map_point_ids: np.ndarray
     outlier: np.ndarray
     T_w_c: np.ndarray | None = None
+    depth_image: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -127,6 +130,7 @@ def make_slam_frame(
         static=static.copy(),
         map_point_ids=np.full(n, -1, np.int64),
         outlier=np.zeros(n, bool),
+        depth_image=frame.depth,
     )
 
 

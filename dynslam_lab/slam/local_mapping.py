@@ -305,7 +305,7 @@ def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMapping
     window = cfg.capped_ba_window if capped else cfg.ba_window
     iterations = cfg.capped_ba_iterations if capped else cfg.ba_iterations
     win = local_ba_window(mp, kf, window, cfg.ba_max_fixed)
-    if win is None:
+    if win is None or not set(win.local) - win.fixed:  # no points, or a keyframe sharing none (nothing free)
         return {"ba_points": 0}
     kfs = {k: mp.keyframes[k] for k in set(win.local) | win.fixed}
     res = bundle_adjust_map(mp, kfs, win.fixed, win.pts, win.o_kf, win.o_pt, win.o_kp, camera, bf, scale_factor,

@@ -30,6 +30,18 @@ that see those points entering with fixed poses::
 
 and ``J = (1 / sigma) (d pi / d X_c) (d X_c / d parameters)`` (the third row zero without depth).
 
+**Metric depth row** (ours, for motion-only BA; ``Observations.z_sigma`` set). The ``u_R`` row weighs
+a depth error ``dz`` as ``bf dz / z^2`` pixels: with ``bf = 40`` a 5 cm error at 3 m is 0.2 px, so the
+depth of a keypoint is worth almost nothing beside its ``(u, v)``, and on a flat wall a small rotation
+and a lateral translation explain the pixels equally well. The metric row replaces ``u_R`` by the
+depth itself, whitened by the sensor's depth noise::
+
+    e_3 = (z_c - z) / sigma_z(z),     d e_3 / d X_c = (0, 0, 1 / sigma_z)
+
+with ``z_c`` the predicted depth (third coordinate of ``X_c``) and ``sigma_z`` from the caller
+(tracking: Nguyen et al. 2012's Kinect model, ``TrackingConfig.depth_sigma_*``). The chi^2 test
+keeps 3 degrees of freedom.
+
 **Robust kernel** by iteratively re-weighted least squares: at each linearisation an observation
 gets the weight ``w = rho'(chi^2) = min(1, delta / sqrt(chi^2))`` (as g2o re-evaluates its kernel at
 every iteration), so the fixed point of the iteration is the Huber minimum.
@@ -76,6 +88,7 @@ __all__ = [
     "huber_cost",
     "stereo_jacobian",
     "optimize_pose",
+    "pose_observation_chi2",
     "local_bundle_adjustment",
     "solve_spd",
     "BAResult",
@@ -103,21 +116,33 @@ class Observations:
     uv: np.ndarray
     ur: np.ndarray
     sigma: np.ndarray
+    z: np.ndarray | None = None
+    z_sigma: np.ndarray | None = None
 
     @classmethod
-    def from_keypoints(cls, uv: np.ndarray, depth: np.ndarray, octave: np.ndarray, bf: float, scale_factor: float) -> "Observations":
+    def from_keypoints(cls, uv: np.ndarray, depth: np.ndarray, octave: np.ndarray, bf: float, scale_factor: float,
+                       z_sigma: np.ndarray | None = None) -> "Observations":
+        """``z_sigma (K,)`` (m, the standard deviation of each keypoint's depth) switches motion-only BA
+        to the metric depth row (:func:`optimize_pose`); None keeps ORB-SLAM2's ``u_R`` row."""
         uv = np.asarray(uv, float).reshape(-1, 2)
         z = np.asarray(depth, float)
         with np.errstate(divide="ignore", invalid="ignore"):
             ur = np.where(z > 0, uv[:, 0] - bf / z, np.nan)
-        return cls(uv, ur, scale_factor ** np.asarray(octave, float))
+        if z_sigma is None:
+            return cls(uv, ur, scale_factor ** np.asarray(octave, float))
+        z_sigma = np.asarray(z_sigma, float).reshape(-1)
+        if len(z_sigma) != len(z) or not np.all((z_sigma > 0) | ~np.isfinite(ur)):
+            raise ValueError(f"Observations: z_sigma must be > 0 for each of the {len(z)} keypoints with depth")
+        return cls(uv, ur, scale_factor ** np.asarray(octave, float), z, z_sigma)
 
     def __len__(self) -> int:
         return len(self.uv)
 
     def subset(self, idx: np.ndarray) -> "Observations":
         """The observations at indices / boolean mask ``idx``."""
-        return Observations(self.uv[idx], self.ur[idx], self.sigma[idx])
+        if self.z_sigma is None:
+            return Observations(self.uv[idx], self.ur[idx], self.sigma[idx])
+        return Observations(self.uv[idx], self.ur[idx], self.sigma[idx], self.z[idx], self.z_sigma[idx])
 
 
 def _rodrigues(omega: np.ndarray) -> np.ndarray:
@@ -212,45 +237,87 @@ def _pose_columns(Jp: np.ndarray, RX: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ pose only
+def _pose_residuals(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened residuals of motion-only BA ``(K, 3)`` and the ``has_depth`` mask: ORB-SLAM2's
+    ``(u, v, u_R)`` (:func:`_residuals`), or with ``obs.z_sigma`` the metric depth row
+    ``(z_c - z) / sigma_z`` in place of the ``u_R`` row (module docstring, "Metric depth row")."""
+    r, has_d = _residuals(X_c, obs, camera, bf)
+    if obs.z_sigma is not None:
+        r[has_d, 2] = (X_c[has_d, 2] - obs.z[has_d]) / obs.z_sigma[has_d]
+    return r, has_d
+
+
+def _pose_point_jacobian(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> np.ndarray:
+    """``(K, 3, 3)`` derivative of :func:`_pose_residuals` in ``X_c``; the metric depth row is
+    ``(0, 0, 1 / sigma_z)``."""
+    Jp = _whitened_jacobian(X_c, obs, camera, bf)
+    if obs.z_sigma is not None:
+        has_d = np.isfinite(obs.ur)
+        Jp[has_d, 2, :2] = 0.0
+        Jp[has_d, 2, 2] = 1.0 / obs.z_sigma[has_d]
+    return Jp
+
+
+def pose_observation_chi2(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`observation_chi2` of motion-only BA (with the metric depth row where ``obs.z_sigma`` is set)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r, has_d = _pose_residuals(X_c, obs, camera, bf)
+    chi2 = np.sum(r**2, axis=1)
+    bad = ~(chi2 <= np.where(has_d, CHI2_3DOF, CHI2_2DOF)) | ~(X_c[:, 2] > 0)
+    return chi2, bad
+
+
 def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
-                   bf: float, delta2: float | None) -> tuple[float, tuple]:
+                   bf: float, delta2: float | None, dense=None) -> tuple[float, tuple]:
     """Robust cost of the pose ``(R, t)`` and what its linearisation needs (points behind the camera
-    left out)."""
+    left out); with ``dense`` (a :class:`~.depth_alignment.DenseTerm`) its point-to-plane residuals
+    are added, each point it cannot associate costing as much as one at the association gate (so
+    that losing points never lowers the cost)."""
     RX = X_w @ R.T
     X_c = RX + t
     front = X_c[:, 2] > _MIN_DEPTH
     if not front.all():
         RX, X_c, obs = RX[front], X_c[front], obs.subset(front)
-    r, _ = _residuals(X_c, obs, camera, bf)
+    r, _ = _pose_residuals(X_c, obs, camera, bf)
     chi2 = np.einsum("ij,ij->i", r, r)
-    return float(huber_cost(chi2, delta2).sum()), (RX, X_c, obs, r, huber_weight(chi2, delta2))
+    cost = float(huber_cost(chi2, delta2).sum())
+    dense_state = None
+    if dense is not None:
+        e, Jd, unmatched = dense.residuals(R, t)
+        cost += float(huber_cost(e * e, delta2).sum()) + float(huber_cost(unmatched, delta2).sum())
+        dense_state = (e, Jd, huber_weight(e * e, delta2))
+    return cost, (RX, X_c, obs, r, huber_weight(chi2, delta2), dense_state)
 
 
 def _lm_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float,
-             delta2: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None);
-    returns ``(R, t, cost)``."""
+             delta2: float | None, iterations: int, dense=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None; optional
+    dense term, :func:`_evaluate_pose`); returns ``(R, t, cost)``."""
     lam = 1e-4
-    cost, (RX, X_c, o, r, w) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2)
+    cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2, dense)
     for _ in range(iterations):
-        J = _pose_columns(_whitened_jacobian(X_c, o, camera, bf), RX).reshape(-1, 6)
+        J = _pose_columns(_pose_point_jacobian(X_c, o, camera, bf), RX).reshape(-1, 6)
         w3 = np.repeat(w, 3)
         H = J.T @ (J * w3[:, None])
         g = J.T @ (w3 * r.ravel())
+        if ds is not None:
+            e, Jd, wd = ds
+            H += Jd.T @ (Jd * wd[:, None])
+            g += Jd.T @ (wd * e)
         while True:
             try:
                 dx = -np.linalg.solve(H + np.diag(lam * np.diag(H) + 1e-12), g)
             except np.linalg.LinAlgError:
                 dx = np.zeros(6)
             R_new, t_new = _rodrigues(dx[:3]) @ R, t + dx[3:]
-            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2)
+            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2, dense)
             if new <= cost or lam > 1e8:
                 break
             lam *= 10.0
         if new > cost:  # no step lowers the cost: converged
             break
         R, t, lam = R_new, t_new, max(lam / 10.0, 1e-9)
-        RX, X_c, o, r, w = state
+        RX, X_c, o, r, w, ds = state
         done = cost - new <= _REL_TOL * cost or np.abs(dx).max() < _STEP_TOL
         cost = new
         if done:
@@ -266,6 +333,7 @@ def optimize_pose(
     bf: float,
     rounds: int = 4,
     max_iterations: int = 10,
+    dense=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Motion-only bundle adjustment (ORB-SLAM2 eq. 2).
 
@@ -275,6 +343,9 @@ def optimize_pose(
     X_w : ``(K, 3)`` world points (metres); obs : their measurements.
     rounds : outlier re-classification rounds (ORB-SLAM2: 4); the last without the Huber kernel.
     max_iterations : Levenberg-Marquardt iterations per round at most (ORB-SLAM2: 10).
+    dense : optional :class:`~.depth_alignment.DenseTerm`, point-to-plane residuals of the frame's
+        depth added to the cost (ours, for frames with few features); its points are re-associated
+        at every evaluation.
 
     Returns
     -------
@@ -284,18 +355,18 @@ def optimize_pose(
     X_w = np.asarray(X_w, float).reshape(-1, 3)
     if len(X_w) != len(obs):
         raise ValueError(f"optimize_pose: {len(X_w)} points but {len(obs)} observations")
-    if len(X_w) < 3:
+    if len(X_w) < 3 and dense is None:
         return np.asarray(T_c_w, float).copy(), np.ones(len(X_w), bool)
     R = nearest_rotation(np.asarray(T_c_w, float)[:3, :3])
     t = np.asarray(T_c_w, float)[:3, 3].copy()
     outlier = np.zeros(len(X_w), bool)
     for rnd in range(rounds):
         use = ~outlier
-        if use.sum() < 3:
+        if use.sum() < 3 and dense is None:
             break
         delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
-        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations)
-        _, outlier = observation_chi2(X_w @ R.T + t, obs, camera, bf)
+        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations, dense)
+        _, outlier = pose_observation_chi2(X_w @ R.T + t, obs, camera, bf)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
     return T, outlier

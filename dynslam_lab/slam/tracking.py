@@ -4,7 +4,9 @@
 For each new frame, with only the keypoints the screening stage judged static:
 
 1. **Motion model** (Sec. V-B): predict ``T_c_w = V T_c_w^{last}`` with the constant velocity
-   ``V = T_c_w^{last} (T_c_w^{before last})^{-1}``; project the map points matched in the last
+   ``V = T_c_w^{last} (T_c_w^{before last})^{-1}`` (ours: scaled to the frame's interval, ``V^s`` with
+   ``s = dt / dt_V``, ``velocity_per_second``; frames 30 and 40 ms apart are not one step each);
+   project the map points matched in the last
    frame and search each within ``r = th * scale_factor**octave`` pixels (``th = 15`` for RGB-D),
    on the keypoint's pyramid level +-1, Hamming distance <= 100, orientation consistent;
    doubling the radius once if fewer than 20 matches. Ours, for repeated patterns, all off by
@@ -38,6 +40,13 @@ For each new frame, with only the keypoints the screening stage judged static:
    over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
+**Dense depth term** (ours, ``dense``, off by default: docs/tracking.md "Dense depth term" has the
+measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
+its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
+prediction), ``"weak"`` only frames the features fail or keep few inliers, so plain walls (few
+features) and repeated patterns (aliased matches) keep a pose; depth samples near keypoints judged
+dynamic are left out. ``"off"`` is ORB-SLAM2.
+
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
 """
@@ -46,18 +55,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
-from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, transform_points
+from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
+from .depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
 from .optimize import Observations, optimize_pose
 
 __all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pose_distance"]
+
+
+_DENSE_KF_MIN_INLIERS = 5  # feature inliers a dense-tracked keyframe needs to be tied to the map (local BA needs observations)
 
 
 def pose_distance(T: np.ndarray) -> tuple[float, float]:
@@ -69,11 +83,12 @@ def pose_distance(T: np.ndarray) -> tuple[float, float]:
 class TrackingConfig:
     """Parameters of tracking (ORB-SLAM2 ``Tracking.cc`` / TUM settings unless noted)."""
 
-    bf: float = 40.0  # virtual stereo baseline x fx (px*m) for the u_R residual; ORB-SLAM2 TUM Camera.bf: 40
-    th_depth: float = 40.0  # close points: depth < th_depth * bf / fx (m); ORB-SLAM2 ThDepth: 40
+    bf: float = 400.0  # virtual stereo baseline x fx (px*m) of the u_R residual, i.e. the weight of a keypoint's depth (a depth error dz costs bf dz / z^2 px); ours, 10x ORB-SLAM2's TUM Camera.bf (40, under which a 5 cm error at 3 m costs 0.2 px and local BA slid keyframes by 14 cm): docs/tracking.md "The weight of depth"
+    th_depth: float = 4.0  # close points: depth < th_depth * bf / fx (m; 3.05 m at fx 525, as ORB-SLAM2's ThDepth 40 with bf 40)
     min_depth: float = 0.1  # keypoint depths below this are missing (m); ours (sensor minimum)
     max_depth: float = 8.0  # keypoint depths above this are missing (m); ours (Kinect range)
     init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
+    velocity_per_second: bool = True  # scale the constant-velocity motion by the ratio of the frame intervals (dt / dt_last): frames 30 and 40 ms apart (the synthetic sequences, TUM's jitter) are not predicted one step each; False = ORB-SLAM2 (one step per frame); ours, docs/tracking.md "Motion model in time"
     motion_radius: float = 15.0  # motion-model search radius at level 0 (px); ORB-SLAM2 RGB-D th: 15
     motion_min_matches: int = 20  # matches needed before optimising (else radius x2); ORB-SLAM2: 20
     motion_ratio: float = 1.0  # best / second-best Hamming distance in the motion-model search, second candidate on any level (1 = off, ORB-SLAM2: no ratio test there); ours, off: docs/tracking.md "Repeated patterns"
@@ -106,19 +121,47 @@ class TrackingConfig:
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
     suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
     suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
+    suspect_trusted_inliers: int = 0  # a pose with at least this many inliers is never suspect (a tracker following a mover keeps few); 0 = off; ours, docs/tracking.md "Graceful failure"
     flood_keyframes: int = 3  # this many frames asking for a keyframe within flood_window frames make a bad stretch; ours
     flood_window: int = 6  # frames; ours
     flood_min_gap: int = 5  # frames between keyframes at least during a bad stretch (and local BA capped); ours
+    depth_residual: str = "stereo"  # motion-only BA's depth row: "stereo" = ORB-SLAM2's u_R = u - bf/z, "metric" = (z_c - z) / sigma_z; ours, docs/tracking.md "Depth in motion-only BA"
+    depth_sigma_0: float = 0.0012  # m, constant term of the keypoint depth noise sigma_z = s0 + s2 (z - zref)^2; Nguyen et al. 2012 (Kinect v1), Eq. 3
+    depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
+    depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
+    depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
+    dense: str = "off"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
+    dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
+    dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
+    dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
+    dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
+    dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
+    dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
+    dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
-                    "suspect_translation", "suspect_rotation_deg")
+                    "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
+                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
+        if self.dense not in ("off", "weak", "always"):
+            raise ValueError(f"TrackingConfig.dense must be 'off', 'weak' or 'always', got {self.dense!r}")
+        if not self.dense_mask_radius >= 0:
+            raise ValueError(f"TrackingConfig.dense_mask_radius must be >= 0, got {self.dense_mask_radius}")
+        if not 0 < self.dense_min_fraction <= 1:
+            raise ValueError(f"TrackingConfig.dense_min_fraction must be in (0, 1], got {self.dense_min_fraction}")
+        if self.depth_residual not in ("stereo", "metric"):
+            raise ValueError(f"TrackingConfig.depth_residual must be 'stereo' or 'metric', got {self.depth_residual!r}")
+        for name in ("depth_sigma_2", "depth_sigma_zref"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
-                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap")
+                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride")
         non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
-                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers",
-                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min")
+                        "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
+                        "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
+                        "dense_min_inliers")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance"):
             if getattr(self, name) < 0:
@@ -126,7 +169,7 @@ class TrackingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("overlap_detection", "local_ratio_any_level"):
+        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in at_least_one:
@@ -193,6 +236,7 @@ class Tracker:
         self.state = TrackState.NOT_INITIALIZED
         self.last: SlamFrame | None = None
         self.velocity: np.ndarray | None = None  # T_c_w(last) @ T_w_c(before last)
+        self.velocity_dt = 0.0  # s between the two frames of the velocity (0 = unknown)
         self.ref_kf: KeyFrame | None = None
         self.last_kf_frame = -(10**9)
         self.last_reloc_frame = -(10**9)
@@ -208,19 +252,35 @@ class Tracker:
         self.predicted_T_c_w: np.ndarray | None = None
         self.motion_deviation = (0.0, 0.0)  # (m, deg) from the prediction; zeros without one
         self.kf_demand_frames: list[int] = []
+        # Dense depth term (ours): the term of the frame being re-tracked (None otherwise), the last
+        # frame's vertex/normal grid (frame index, grid), the fraction of depth samples associated.
+        self._dense: DenseTerm | None = None
+        self._dense_grid: tuple[int, DepthGrid] | None = None
+        self.dense_fraction = 0.0
 
     # -------------------------------------------------------------- helpers
+    def depth_sigma(self, z: np.ndarray) -> np.ndarray:
+        """Standard deviation (m) of keypoint depths ``z`` in the metric depth row: ``depth_sigma_scale``
+        x Nguyen et al. 2012's Kinect v1 axial noise ``s0 + s2 (z - zref)^2``."""
+        c = self.cfg
+        return c.depth_sigma_scale * (c.depth_sigma_0 + c.depth_sigma_2 * (np.asarray(z, float) - c.depth_sigma_zref) ** 2)
+
     def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
-        return Observations.from_keypoints(frame.uv[idx], frame.depth[idx], frame.octave[idx], self.cfg.bf, self.scale_factor)
+        z = frame.depth[idx]
+        z_sigma = None
+        if self.cfg.depth_residual == "metric":
+            z_sigma = np.where(np.isfinite(z), self.depth_sigma(np.nan_to_num(z, nan=1.0)), np.nan)
+        return Observations.from_keypoints(frame.uv[idx], z, frame.octave[idx], self.cfg.bf, self.scale_factor, z_sigma)
 
     def _optimize(self, frame: SlamFrame, T_c_w: np.ndarray) -> int:
         """Motion-only BA over the frame's matches; marks outliers; returns inlier count."""
         idx = np.flatnonzero(frame.map_point_ids >= 0)
         frame.outlier[:] = False
-        if len(idx) < 3:
+        if len(idx) < 3 and self._dense is None:
             frame.T_w_c = se3_inv(T_c_w)
             return 0
-        T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf)
+        T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf,
+                               dense=self._dense)
         frame.T_w_c = se3_inv(T)
         frame.outlier[idx[out]] = True
         return int((~out).sum())
@@ -232,12 +292,22 @@ class Tracker:
     def _available(self, frame: SlamFrame) -> np.ndarray:
         return frame.static & (frame.map_point_ids < 0)
 
-    def predict_pose(self) -> np.ndarray | None:
+    def predict_pose(self, timestamp: float | None = None) -> np.ndarray | None:
         """The constant-velocity prediction ``T_c_w = V T_c_w^last`` for the next frame (``V`` the last
-        frame-to-frame motion in the camera frame, ``T_c_w^last (T_c_w^before)^-1``), or None."""
+        frame-to-frame motion in the camera frame, ``T_c_w^last (T_c_w^before)^-1``), or None.
+
+        With ``velocity_per_second`` and the frame's ``timestamp``, ``V`` is scaled to the frame's interval:
+        ``V^s`` with ``s = (timestamp - t_last) / dt_V`` (rotation vector and translation scaled by ``s``; ours)."""
         if self.velocity is None or self.last is None or self.last.T_w_c is None:
             return None
-        return self.velocity @ se3_inv(self.last.T_w_c)
+        V = self.velocity
+        if self.cfg.velocity_per_second and timestamp is not None and self.velocity_dt > 0:
+            s = (float(timestamp) - self.last.timestamp) / self.velocity_dt
+            if 0 < s < 10 and s != 1.0:
+                V = np.eye(4)
+                V[:3, :3] = so3_exp(s * so3_log(self.velocity[:3, :3]))
+                V[:3, 3] = s * self.velocity[:3, 3]
+        return V @ se3_inv(self.last.T_w_c)
 
     # --------------------------------------------------------------- stages
     def track_motion_model(self, frame: SlamFrame) -> bool:
@@ -245,26 +315,13 @@ class Tracker:
         last = self.last
         if last is None or self.velocity is None or last.T_w_c is None:
             return False
-        T_pred = self.predict_pose()
+        T_pred = self.predict_pose(frame.timestamp)
         self.predicted_T_c_w = T_pred
-        lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
-        pids = last.map_point_ids[lidx]
-        alive = self.map.alive[pids]
-        lidx, pids = lidx[alive], pids[alive]
-        if len(pids) < self.cfg.motion_min_matches:
-            return False
-        uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
-        vis = (z > 0) & self.camera.in_image(uv)
-        lidx, pids, uv, z = lidx[vis], pids[vis], uv[vis], z[vis]
-        frame.map_point_ids[:] = -1
         cfg = self.cfg
-        for factor in (1.0, 2.0):
-            m = self._search_last(frame, last, lidx, pids, uv, z, factor * cfg.motion_radius, cfg.motion_ratio)
-            if len(m) >= cfg.motion_min_matches:
-                break
-        if len(m) < cfg.motion_min_matches:
+        found = self._match_last_frame(frame, T_pred, cfg.motion_min_matches)
+        if found is None:
             return False
-        frame.map_point_ids[m.idx_b] = pids[m.idx_a]
+        lidx, pids = found
         n = self._optimize(frame, T_pred)
         if cfg.motion_refine_radius > 0 and n >= cfg.min_track_inliers:
             # Second pass (ours): the pose from the unambiguous matches is accurate to a pixel or
@@ -279,6 +336,91 @@ class Tracker:
                 n = self._optimize(frame, T1)
         self._discard_outliers(frame)
         return n >= cfg.min_track_inliers
+
+    def _match_last_frame(self, frame: SlamFrame, T_pred: np.ndarray, min_matches: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Project the last frame's matched points with ``T_pred`` and search them in ``frame`` (radius
+        doubled when fewer than ``min_matches``); sets ``frame.map_point_ids``. Returns the last frame's
+        keypoints and point ids searched, or None with fewer than ``min_matches`` points or matches."""
+        last, cfg = self.last, self.cfg
+        lidx = np.flatnonzero((last.map_point_ids >= 0) & ~last.outlier)
+        pids = last.map_point_ids[lidx]
+        alive = self.map.alive[pids]
+        lidx, pids = lidx[alive], pids[alive]
+        frame.map_point_ids[:] = -1
+        if len(pids) < min_matches:
+            return None
+        uv, z = self.camera.project(transform_points(T_pred, self.map.xyz[pids]))
+        vis = (z > 0) & self.camera.in_image(uv)
+        lidx, pids, uv, z = lidx[vis], pids[vis], uv[vis], z[vis]
+        for factor in (1.0, 2.0):
+            m = self._search_last(frame, last, lidx, pids, uv, z, factor * cfg.motion_radius, cfg.motion_ratio)
+            if len(m) >= max(min_matches, 1):
+                break
+        if len(m) < min_matches:
+            return None
+        frame.map_point_ids[m.idx_b] = pids[m.idx_a]
+        return lidx, pids
+
+    def _dense_term(self, frame: SlamFrame) -> DenseTerm | None:
+        """The point-to-plane term of ``frame``'s depth against the last frame's (module
+        :mod:`.depth_alignment`), or None without both depth images."""
+        last, cfg = self.last, self.cfg
+        if frame.depth_image is None or last is None or last.depth_image is None or last.T_w_c is None:
+            return None
+        if self._dense_grid is None or self._dense_grid[0] != last.index:
+            grid = vertex_normal_grid(last.depth_image, self.camera, cfg.dense_stride)
+            grid.N[self._dynamic_cells(last, grid.N.shape[:2])] = np.nan
+            self._dense_grid = (last.index, grid)
+        X = self.camera.backproject_depth(frame.depth_image, cfg.dense_stride)
+        X = X[~self._dynamic_cells(frame, X.shape[:2])]
+        X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
+        if len(X) < 100:
+            return None
+        T_pred = self.predict_pose(frame.timestamp)
+        if T_pred is None:
+            T_pred = se3_inv(last.T_w_c)
+        return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
+                         cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
+
+    def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int]) -> np.ndarray:
+        """``(h, w)`` bool over the dense grid: cells within ``dense_mask_radius`` px of a keypoint the
+        screening judged dynamic (vectorised: the keypoints' cells, dilated by a disc)."""
+        out = np.zeros(shape, bool)
+        dyn = frame.uv[~frame.static]
+        if not len(dyn) or self.cfg.dense_mask_radius <= 0:
+            return out
+        s = self.cfg.dense_stride
+        i = np.clip(np.round(dyn[:, 1] / s).astype(np.int64), 0, shape[0] - 1)
+        j = np.clip(np.round(dyn[:, 0] / s).astype(np.int64), 0, shape[1] - 1)
+        out[i, j] = True
+        r = int(np.ceil(self.cfg.dense_mask_radius / s))
+        disc = (np.add.outer(np.arange(-r, r + 1) ** 2, np.arange(-r, r + 1) ** 2) <= r * r).astype(np.uint8)
+        return cv2.dilate(out.astype(np.uint8), disc) > 0
+
+    def track_dense(self, frame: SlamFrame) -> bool:
+        """Track ``frame`` again with the dense depth term in every motion-only BA (ours, for frames
+        with few features): the last frame's points searched around the prediction (no minimum), the
+        pose from them and the depth, then the local map with the depth term too. Accepted with
+        ``min_track_inliers`` feature inliers and ``dense_min_fraction`` of the depth samples associated."""
+        cfg = self.cfg
+        term = self._dense_term(frame)
+        if term is None:
+            return False
+        T_pred = term.T_prior
+        if self.velocity is not None:
+            self.predicted_T_c_w = T_pred
+        self._dense = term
+        try:
+            self._match_last_frame(frame, T_pred, 0)
+            self._optimize(frame, T_pred)
+            self._discard_outliers(frame)
+            n = self.track_local_map(frame)
+        finally:
+            self._dense = None
+        T = se3_inv(frame.T_w_c)
+        self.dense_fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
+        self.n_inliers = n
+        return n >= cfg.dense_min_inliers and self.dense_fraction >= cfg.dense_min_fraction
 
     def _search_last(self, frame: SlamFrame, last: SlamFrame, lidx: np.ndarray, pids: np.ndarray, uv: np.ndarray,
                      z: np.ndarray, radius: float, ratio: float) -> Matches:
@@ -442,17 +584,20 @@ class Tracker:
         self.predicted_T_c_w = None
         self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
-            if self.velocity is not None and self.track_motion_model(frame):
-                ok, self.method = True, "motion_model"
+            if cfg.dense == "always" and self.track_dense(frame):
+                ok, self.method = True, "dense"
             else:
-                frame.map_point_ids[:] = -1
-                ok = self.track_reference_keyframe(frame)
-                self.method = "reference_keyframe" if ok else ""
-            if ok:
-                n = self.track_local_map(frame)
-                need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
-                ok = n >= need
-                self.n_inliers = n
+                ok = self._track_features(frame)
+                if cfg.dense == "weak" and (not ok or self.n_inliers < cfg.dense_below_inliers):
+                    kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers, self.ref_kf,
+                            self.method)
+                    frame.outlier[:] = False
+                    if self.track_dense(frame):
+                        ok, self.method = True, "dense"
+                    elif ok:  # the feature-only pose stands
+                        frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers, self.ref_kf, self.method = kept
+                    else:
+                        self.method = ""
             state = TrackState.OK if ok else TrackState.LOST
         else:
             ok = self.relocalize(frame)
@@ -466,6 +611,7 @@ class Tracker:
                 V = se3_inv(frame.T_w_c) @ self.last.T_w_c
                 V[:3, :3] = nearest_rotation(V[:3, :3])
                 self.velocity = V
+                self.velocity_dt = frame.timestamp - self.last.timestamp
             else:
                 self.velocity = None
             self.last = frame
@@ -476,12 +622,30 @@ class Tracker:
         self.state = state
         return state
 
+    def _track_features(self, frame: SlamFrame) -> bool:
+        """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""
+        cfg = self.cfg
+        if self.velocity is not None and self.track_motion_model(frame):
+            ok, self.method = True, "motion_model"
+        else:
+            frame.map_point_ids[:] = -1
+            ok = self.track_reference_keyframe(frame)
+            self.method = "reference_keyframe" if ok else ""
+        if ok:
+            n = self.track_local_map(frame)
+            need = cfg.min_local_inliers_reloc if frame.index - self.last_reloc_frame < cfg.kf_max_frames else cfg.min_local_inliers
+            ok = n >= need
+            self.n_inliers = n
+        return ok
+
     @property
     def suspect(self) -> bool:
         """The last tracked pose landed implausibly far from the constant-velocity prediction (a camera
         does not accelerate by centimetres or degrees within a frame; tracking that latched onto a
         moving object does). Ours, for graceful failure (issue: failure is expensive)."""
         dt, dr = self.motion_deviation
+        if 0 < self.cfg.suspect_trusted_inliers <= self.n_inliers:
+            return False
         return dt > self.cfg.suspect_translation or dr > self.cfg.suspect_rotation_deg
 
     def in_bad_stretch(self, frame_index: int) -> bool:
@@ -526,5 +690,9 @@ class Tracker:
         n = self.n_inliers
         c1 = since >= cfg.kf_max_frames or since >= cfg.kf_min_frames
         c1c = n < 0.25 * n_ref or need_close
-        c2 = (n < ratio * n_ref or need_close) and n > cfg.kf_min_inliers
+        # a dense-tracked frame (few features, ours) may make a keyframe with fewer inliers (a few, to tie it
+        # to the map), or none when it sees many new close points (the map starts again from the pose the
+        # depth gave): else the map cannot grow over a stretch of plain walls
+        enough = n > cfg.kf_min_inliers or (self.method == "dense" and (n >= _DENSE_KF_MIN_INLIERS or need_close))
+        c2 = (n < ratio * n_ref or need_close) and enough
         return bool((c1 or c1c) and c2)

@@ -206,3 +206,55 @@ def test_bad_input():
     with pytest.raises(ValueError, match="observations"):
         optimize_pose(np.eye(4), np.zeros((5, 3)), Observations(np.zeros((4, 2)), np.zeros(4), np.ones(4)), CAM, BF)
     assert se3_inv(np.eye(4)).shape == (4, 4)
+
+
+def _nguyen(z):
+    return 0.0012 + 0.0019 * (z - 0.4) ** 2  # Nguyen et al. 2012, Kinect v1 axial noise (m)
+
+
+def test_metric_depth_row_jacobian_matches_finite_differences():
+    """The pose columns of the metric depth row against a numerical derivative of the residuals."""
+    rng = np.random.default_rng(7)
+    X = _points(rng, 40)
+    T = make_pose(so3_exp([0.02, -0.03, 0.01]), [0.05, 0.02, -0.04])
+    uv, z = CAM.project(transform_points(T, X))
+    z = np.where(rng.random(40) < 0.25, np.nan, z + rng.normal(0, 0.01, 40))
+    obs = Observations.from_keypoints(uv + rng.normal(0, 0.5, uv.shape), z, rng.integers(0, 3, 40), BF, 1.2,
+                                      z_sigma=np.where(np.isfinite(z), _nguyen(np.nan_to_num(z)), np.nan))
+    R, t = T[:3, :3], T[:3, 3]
+
+    def residuals(dx):
+        Rn, tn = opt._rodrigues(dx[:3]) @ R, t + dx[3:]
+        return opt._pose_residuals(X @ Rn.T + tn, obs, CAM, BF)[0].ravel()
+
+    eps = 1e-6
+    J_num = np.stack([(residuals(e) - residuals(-e)) / (2 * eps) for e in np.eye(6) * eps], axis=1)
+    J = opt._pose_columns(opt._pose_point_jacobian(X @ R.T + t, obs, CAM, BF), X @ R.T).reshape(-1, 6)
+    np.testing.assert_allclose(J, J_num, atol=1e-4 * np.abs(J_num).max())
+    # the depth row by hand: (z_c - z) / sigma_z, and no u_R left in it
+    r = opt._pose_residuals(X @ R.T + t, obs, CAM, BF)[0]
+    d = np.isfinite(z)
+    np.testing.assert_allclose(r[d, 2], ((X @ R.T + t)[d, 2] - z[d]) / _nguyen(z[d]))
+    assert np.all(r[~d, 2] == 0)
+
+
+def test_metric_depth_row_resolves_rotation_against_translation_on_a_wall():
+    """A camera 3 m before a flat wall (the loop scenes' failure): pixels alone barely tell a small yaw
+    from a sideways step; with Kinect-like depth noise the metric depth row recovers the pose closer to
+    the truth than ORB-SLAM2's u_R row (bf = 40), over 20 noise draws."""
+    rng = np.random.default_rng(8)
+    n = 250
+    X = np.c_[rng.uniform(-1.4, 1.4, n), rng.uniform(-1.0, 1.0, n), np.full(n, 3.0)]
+    errs = {"stereo": [], "metric": []}
+    for _ in range(20):
+        T_true = make_pose(so3_exp(rng.normal(0, 0.02, 3)), rng.normal(0, 0.05, 3))
+        uv, z = CAM.project(transform_points(T_true, X))
+        uv = uv + rng.normal(0, 1.0, uv.shape)
+        zm = z + rng.normal(0, 1.0, n) * _nguyen(z)
+        for kind in errs:
+            obs = Observations.from_keypoints(uv, zm, np.zeros(n), BF, 1.2,
+                                              z_sigma=_nguyen(zm) if kind == "metric" else None)
+            T, _ = optimize_pose(np.eye(4), X, obs, CAM, BF)
+            errs[kind].append(np.linalg.norm(se3_inv(T)[:3, 3] - se3_inv(T_true)[:3, 3]))
+    stereo, metric = np.sqrt(np.mean(np.square(errs["stereo"]))), np.sqrt(np.mean(np.square(errs["metric"])))
+    assert metric < 0.6 * stereo and metric < 0.006, (metric, stereo)

@@ -155,3 +155,80 @@ def test_repeated_pattern_options_are_validated():
             TrackingConfig(**bad)
     off = TrackingConfig(motion_ratio=1.0, motion_refine_radius=0.0, match_depth_tolerance=0.0, local_ratio_any_level=False)
     assert off.motion_ratio == 1.0  # every option can be switched off (the ORB-SLAM2 behaviour)
+
+
+def test_depth_residual_options_are_validated_and_reach_the_observations():
+    for bad, field in (({"depth_residual": "icp"}, "depth_residual"), ({"depth_sigma_0": 0.0}, "depth_sigma_0"),
+                       ({"depth_sigma_2": -1.0}, "depth_sigma_2"), ({"depth_sigma_scale": 0.0}, "depth_sigma_scale"),
+                       ({"suspect_trusted_inliers": -1}, "suspect_trusted_inliers")):
+        with pytest.raises(ValueError, match=f"TrackingConfig.{field} must"):
+            TrackingConfig(**bad)
+    # the metric row's sigma is Nguyen et al. 2012's Kinect model times the scale (3 m: 1.40 cm x 1.5)
+    frames = scene.frames(2, "xyz")
+    for kind in ("stereo", "metric"):
+        sys_ = System(CAM, Config(tracking=TrackingConfig(depth_residual=kind)))
+        sys_.process(frames[0])
+        tr = sys_.tracker
+        assert np.isclose(tr.depth_sigma(np.array([3.0]))[0], 1.5 * (0.0012 + 0.0019 * 2.6**2))
+        sf = tr.last
+        idx = np.flatnonzero(np.isfinite(sf.depth))[:20]
+        obs = tr._obs(sf, idx)
+        assert (obs.z_sigma is None) == (kind == "stereo")
+        if kind == "metric":
+            np.testing.assert_allclose(obs.z, sf.depth[idx])
+            np.testing.assert_allclose(obs.z_sigma, tr.depth_sigma(sf.depth[idx]))
+
+
+def test_motion_model_scales_the_velocity_to_the_frame_interval():
+    """A camera turning at a constant 60 deg/s and moving 0.6 m/s (each interval ``dt`` moves ``T_c_w`` by
+    ``M(dt) = (Exp(w dt), v dt)``), with frames 30 and 40 ms apart (the synthetic sequences' clock): the
+    prediction scaled by dt / dt_last is exact; one step per frame (ORB-SLAM2) misses 10 ms of turning."""
+    w, v = np.radians([0.0, 60.0, 10.0]), np.array([0.6, 0.0, 0.2])
+
+    def M(dt):
+        return make_pose(so3_exp(w * dt), v * dt)
+
+    T_c_w = {0.0: np.eye(4)}
+    T_c_w[0.03] = M(0.03) @ T_c_w[0.0]
+    T_c_w[0.07] = M(0.04) @ T_c_w[0.03]
+    for per_second in (True, False):
+        tr = _tracker_at({t: se3_inv(T) for t, T in T_c_w.items()}, [0.0, 0.03], TrackingConfig(velocity_per_second=per_second))
+        err = tr.predict_pose(0.07) @ se3_inv(T_c_w[0.07])  # identity when exact
+        rot_err = np.degrees(np.linalg.norm(np.array([err[2, 1] - err[1, 2], err[0, 2] - err[2, 0], err[1, 0] - err[0, 1]]) / 2))
+        if per_second:
+            assert np.abs(err - np.eye(4)).max() < 1e-9
+        else:
+            assert abs(rot_err - np.degrees(np.linalg.norm(w)) * 0.01) < 0.01  # 10 ms at 60.8 deg/s
+    with pytest.raises(ValueError, match="TrackingConfig.velocity_per_second must be a bool"):
+        TrackingConfig(velocity_per_second=1)
+
+
+def _tracker_at(T_w_c, times, cfg):
+    """A tracker whose last two frames were at ``times`` with poses ``T_w_c[t]`` (velocity set as
+    :meth:`Tracker.track` sets it)."""
+    from dynslam_lab.slam.tracking import Tracker
+
+    tr = Tracker(CAM, Map(), cfg, 1.2)
+    frames = scene.frames(1, "xyz")
+    sf = make_slam_frame(frames[0], extract_features(frames[0].gray))
+    sf.timestamp, sf.T_w_c = times[1], T_w_c[times[1]]
+    tr.last = sf
+    tr.velocity = se3_inv(T_w_c[times[1]]) @ T_w_c[times[0]]
+    tr.velocity_dt = times[1] - times[0]
+    return tr
+
+
+def test_dense_tracking_follows_the_rendered_camera():
+    """``dense = "always"``: every frame tracked with the point-to-plane depth term (and the features),
+    against the renderer's poses; a third of the view judged dynamic leaves its depth out too."""
+    frames = scene.frames(16, "xyz")
+    sys_ = System(CAM, Config(tracking=TrackingConfig(dense="always")), screener=_LeftThirdDynamic())
+    results = [sys_.process(f) for f in frames]
+    assert all(r.state == TrackState.OK for r in results)
+    assert [r.method for r in results[2:]] == ["dense"] * 14
+    err = [np.linalg.norm(r.T_w_c[:3, 3] - f.T_w_c_gt[:3, 3]) for r, f in zip(results, frames)]
+    assert max(err) < 0.02  # the feature-only tracker with the same third removed: 1.7 cm at worst over 40 frames
+    tr = sys_.tracker
+    assert tr.dense_fraction > 0.5
+    cells = tr._dynamic_cells(tr.last, (60, 80))
+    assert cells[:, :20].mean() > 0.5 and not cells[:, 31:].any()  # the left third (213 px = 27 of 80 columns) + 24 px masked
