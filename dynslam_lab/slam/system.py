@@ -256,7 +256,7 @@ class System:
         if self.screener is not None:
             t0 = time.perf_counter()
             # screeners that judge against the map and earlier frames get the system's knowledge
-            extra = {"context": self._screening_context(feats)} if getattr(self.screener, "uses_context", False) else {}
+            extra = {"context": self._screening_context(feats, float(frame.timestamp))} if getattr(self.screener, "uses_context", False) else {}
             table = self.screener.screen(frame, feats.uv, detections, **extra)
             t["screen"] = 1e3 * (time.perf_counter() - t0)
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
@@ -264,13 +264,14 @@ class System:
                 raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
         return dynamic, table
 
-    def _screening_context(self, feats: Features) -> ScreeningContext:
+    def _screening_context(self, feats: Features, timestamp: float) -> ScreeningContext:
         """What the screener may use before tracking (``dynamic.context``): the constant-velocity
-        prediction, the poses of the last tracked frames (by timestamp) and the local map points."""
+        prediction for the frame at ``timestamp`` (the tracker's own, scaled to the frame interval), the
+        poses of the last tracked frames (by timestamp) and the local map points."""
         tr = self.tracker
         T_pred = None  # constant velocity; constant position while the velocity is unknown (frame 1, after relocalisation)
         if tr.state in (TrackState.OK, TrackState.RELOCALIZED) and tr.last is not None and tr.last.T_w_c is not None:
-            T_pred = se3_inv(tr.last.T_w_c) if tr.velocity is None else tr.velocity @ se3_inv(tr.last.T_w_c)
+            T_pred = se3_inv(tr.last.T_w_c) if tr.velocity is None else tr.predict_pose(timestamp)
         poses = {ts: self.map.keyframe_pose(ref) @ T_ref_c for ts, ref, T_ref_c in self._anchors[-self.screener.history_length:]}
         kf_ids = [k for k in tr.local_kf_ids if k in self.map.keyframes]
         ids = np.concatenate([self.map.keyframes[k].map_point_ids for k in kf_ids]) if kf_ids else np.zeros(0, np.int64)
