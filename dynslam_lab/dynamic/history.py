@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["PastFrame", "FrameHistory", "reduce_depth"]
+__all__ = ["PastFrame", "FrameHistory", "FarFrame", "FarFrames", "reduce_depth"]
 
 
 def reduce_depth(depth: np.ndarray, factor: int, max_spread: float = 0.05, min_valid: float = 0.25) -> np.ndarray:
@@ -92,8 +92,11 @@ class FrameHistory:
     def last(self) -> PastFrame | None:
         return self._frames[-1] if self._frames else None
 
-    def push(self, frame: PastFrame) -> None:
+    def push(self, frame: PastFrame) -> PastFrame | None:
+        """Keep ``frame``; returns the oldest frame when it falls out of the history, else None."""
+        evicted = self._frames[0] if len(self._frames) == self.length else None
         self._frames.append(frame)
+        return evicted
 
     def update_poses(self, poses: dict[float, np.ndarray]) -> None:
         """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp)."""
@@ -125,3 +128,44 @@ class FrameHistory:
                         out.append(f)
                     break
         return out
+
+
+@dataclass(eq=False)
+class FarFrame:
+    """A frame kept beyond the history for the free-space test (:mod:`.multiframe`): only its
+    reduced depth, eroded (``(h, w)`` float32 m), and its pose (``T_w_c``, as last known)."""
+
+    index: int
+    T_w_c: np.ndarray
+    depth_min: np.ndarray
+
+
+class FarFrames:
+    """Frames older than the history, one every ``every`` frames, the last ``count`` of them: what
+    the place looked like before a slow mover got there (ours; ``docs/robustness.md``)."""
+
+    def __init__(self, every: int, count: int) -> None:
+        if every < 1 or count < 0:
+            raise ValueError(f"FarFrames: every >= 1 and count >= 0 required, got every={every}, count={count}")
+        self.every = int(every)
+        self._frames: deque[FarFrame] = deque(maxlen=max(int(count), 1))
+        self.count = int(count)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def clear(self) -> None:
+        self._frames.clear()
+
+    def offer(self, index: int, T_w_c: np.ndarray | None, depth_min) -> bool:
+        """Keep a frame leaving the history when it has a pose and ``every`` frames passed since the
+        last one kept; ``depth_min`` is called only then (it computes the eroded reduced depth)."""
+        if self.count == 0 or T_w_c is None:
+            return False
+        if self._frames and index - self._frames[-1].index < self.every:
+            return False
+        self._frames.append(FarFrame(int(index), np.asarray(T_w_c, np.float64).copy(), np.asarray(depth_min(), np.float32)))
+        return True
