@@ -98,14 +98,25 @@ class FrameHistory:
         self._frames.append(frame)
         return evicted
 
-    def update_poses(self, poses: dict[float, np.ndarray]) -> None:
-        """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp)."""
+    def update_poses(self, poses: dict[float, np.ndarray]) -> np.ndarray | None:
+        """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp).
+
+        Returns the correction ``T_new T_old^-1`` of the oldest kept frame that had a pose (what local BA
+        or a loop closure did to the world around it; :meth:`FarFrames.correct` applies it to the frames
+        older still), or None when no known pose changed."""
         if not poses:
-            return
+            return None
+        correction = None
         for f in self._frames:
             T = poses.get(float(f.timestamp))
             if T is not None:
-                f.T_w_c = np.asarray(T, np.float64)
+                T = np.asarray(T, np.float64)
+                if correction is None and f.T_w_c is not None:
+                    correction = T @ np.linalg.inv(f.T_w_c)
+                f.T_w_c = T
+        if correction is not None and np.allclose(correction, np.eye(4), atol=1e-9):
+            return None
+        return correction
 
     def back(self, offset: int) -> PastFrame | None:
         """The frame ``offset`` positions before the newest one would be pushed (1 = the last one)."""
@@ -159,6 +170,12 @@ class FarFrames:
 
     def clear(self) -> None:
         self._frames.clear()
+
+    def correct(self, correction: np.ndarray) -> None:
+        """Move every far frame's pose by ``correction`` (``T_w_c <- correction T_w_c``): the poses of the
+        frames they are older than were corrected (local BA, a loop closure), theirs come no more."""
+        for f in self._frames:
+            f.T_w_c = np.asarray(correction, np.float64) @ f.T_w_c
 
     def offer(self, index: int, T_w_c: np.ndarray | None, depth_min) -> bool:
         """Keep a frame leaving the history when it has a pose and ``every`` frames passed since the

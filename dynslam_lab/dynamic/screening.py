@@ -179,7 +179,9 @@ class Screener:
         if last is not None and last.gray.shape != frame.gray.shape:
             self.reset()  # a new image size: the history does not apply
         if context is not None:
-            mem.history.update_poses(context.poses)
+            correction = mem.history.update_poses(context.poses)
+            if correction is not None:
+                mem.far.correct(correction)
         w = FrameWork(frame, uv, detections, context, self.config, mem)
         for name in self.stages:
             fn = STAGE_FUNCTIONS.get(name)

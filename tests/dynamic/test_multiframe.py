@@ -183,3 +183,22 @@ def test_far_frames_find_a_slow_mover_that_the_recent_frames_saw_standing_there(
         MultiFrameConfig(far_every=0)
     with pytest.raises(ValueError, match="far_count"):
         MultiFrameConfig(far_count=-1)
+
+
+def test_far_frames_follow_the_corrections_of_the_history_poses():
+    from dynslam_lab.dynamic.history import FarFrames, FrameHistory, PastFrame
+
+    h, far = FrameHistory(2), FarFrames(every=2, count=2)
+    img, dep = np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.float32)
+    for k in range(6):
+        evicted = h.push(PastFrame(k, float(k), img, dep, T_w_c=make_pose(None, np.array([0.1 * k, 0, 0]))))
+        if evicted is not None:
+            far.offer(evicted.index, evicted.T_w_c, lambda: dep[::2, ::2])
+    assert [f.index for f in far] == [0, 2] and [f.index for f in h] == [4, 5]
+    # a loop closure moves the world by 5 cm along y: the history learns it from the poses, the far frames follow
+    shift = make_pose(None, np.array([0.0, 0.05, 0.0]))
+    corr = h.update_poses({4.0: shift @ h.back(2).T_w_c, 5.0: shift @ h.back(1).T_w_c})
+    assert np.allclose(corr, shift)
+    far.correct(corr)
+    assert np.allclose([f.T_w_c[:3, 3] for f in far], [[0.0, 0.05, 0.0], [0.2, 0.05, 0.0]])
+    assert h.update_poses({4.0: h.back(2).T_w_c}) is None  # nothing changed
