@@ -70,14 +70,10 @@ class PastFrame:
     cache: dict = field(default_factory=dict)
 
 
-class FrameHistory:
-    """The last ``length`` screened frames, newest last."""
+class _Kept:
+    """Frames kept in a bounded deque, oldest first: length, iteration, ``clear``."""
 
-    def __init__(self, length: int) -> None:
-        if length < 1:
-            raise ValueError(f"FrameHistory: length must be >= 1, got {length}")
-        self.length = int(length)
-        self._frames: deque[PastFrame] = deque(maxlen=self.length)
+    _frames: deque
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -87,6 +83,16 @@ class FrameHistory:
 
     def clear(self) -> None:
         self._frames.clear()
+
+
+class FrameHistory(_Kept):
+    """The last ``length`` screened frames, newest last."""
+
+    def __init__(self, length: int) -> None:
+        if length < 1:
+            raise ValueError(f"FrameHistory: length must be >= 1, got {length}")
+        self.length = int(length)
+        self._frames: deque[PastFrame] = deque(maxlen=self.length)
 
     @property
     def last(self) -> PastFrame | None:
@@ -151,7 +157,7 @@ class FarFrame:
     depth_min: np.ndarray
 
 
-class FarFrames:
+class FarFrames(_Kept):
     """Frames older than the history, one every ``every`` frames, the last ``count`` of them: what
     the place looked like before a slow mover got there (ours; ``docs/robustness.md``)."""
 
@@ -161,15 +167,6 @@ class FarFrames:
         self.every = int(every)
         self._frames: deque[FarFrame] = deque(maxlen=max(int(count), 1))
         self.count = int(count)
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    def __iter__(self):
-        return iter(self._frames)
-
-    def clear(self) -> None:
-        self._frames.clear()
 
     def correct(self, correction: np.ndarray) -> None:
         """Move every far frame's pose by ``correction`` (``T_w_c <- correction T_w_c``): the poses of the
