@@ -108,8 +108,8 @@ class FrameHistory(_Kept):
         """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp).
 
         Returns the correction ``T_new T_old^-1`` of the oldest kept frame that had a pose (what local BA
-        or a loop closure did to the world around it; :meth:`FarFrames.correct` applies it to the frames
-        older still), or None when no known pose changed."""
+        or a loop closure did to the world around it: the screener drops its far frames after a large one),
+        or None when no known pose changed."""
         if not poses:
             return None
         correction = None
@@ -167,12 +167,6 @@ class FarFrames(_Kept):
         self.every = int(every)
         self._frames: deque[FarFrame] = deque(maxlen=max(int(count), 1))
         self.count = int(count)
-
-    def correct(self, correction: np.ndarray) -> None:
-        """Move every far frame's pose by ``correction`` (``T_w_c <- correction T_w_c``): the poses of the
-        frames they are older than were corrected (local BA, a loop closure), theirs come no more."""
-        for f in self._frames:
-            f.T_w_c = np.asarray(correction, np.float64) @ f.T_w_c
 
     def offer(self, index: int, T_w_c: np.ndarray | None, depth_min) -> bool:
         """Keep a frame leaving the history when it has a pose and ``every`` frames passed since the

@@ -180,8 +180,8 @@ class Screener:
             self.reset()  # a new image size: the history does not apply
         if context is not None:
             correction = mem.history.update_poses(context.poses)
-            if correction is not None:
-                mem.far.correct(correction)
+            if correction is not None and np.linalg.norm(correction[:3, 3]) > self.config.multiframe.far_reset_m:
+                mem.far.clear()  # a loop closure moved the world: the far frames' poses are stale
         w = FrameWork(frame, uv, detections, context, self.config, mem)
         for name in self.stages:
             fn = STAGE_FUNCTIONS.get(name)

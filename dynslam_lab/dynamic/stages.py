@@ -254,8 +254,8 @@ class FrameWork:
         evicted = self.memory.history.push(self.past_frame(region, T_w_c))
         if evicted is not None and evicted.depth.shape == self.shape:
             f = self.config.multiframe.factor
-            self.memory.far.offer(evicted.index, evicted.T_w_c,
-                                  lambda: _cached(evicted, "small_min", lambda: eroded_depth(_past_small_depth(evicted, f), 1)))
+            r = self.config.multiframe.far_min_filter_cells
+            self.memory.far.offer(evicted.index, evicted.T_w_c, lambda: eroded_depth(_past_small_depth(evicted, f), r))
 
     def past_frame(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> PastFrame:
         """This frame as the memory keeps it for the next ones."""

@@ -185,8 +185,11 @@ def test_far_frames_find_a_slow_mover_that_the_recent_frames_saw_standing_there(
         MultiFrameConfig(far_count=-1)
 
 
-def test_far_frames_follow_the_corrections_of_the_history_poses():
+def test_far_frames_are_dropped_when_a_loop_closure_moves_the_kept_poses():
+    from dynslam_lab.dynamic.config import ScreeningConfig
+    from dynslam_lab.dynamic.context import ScreeningContext
     from dynslam_lab.dynamic.history import FarFrames, FrameHistory, PastFrame
+    from dynslam_lab.dynamic.screening import Screener
 
     h, far = FrameHistory(2), FarFrames(every=2, count=2)
     img, dep = np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.float32)
@@ -195,10 +198,28 @@ def test_far_frames_follow_the_corrections_of_the_history_poses():
         if evicted is not None:
             far.offer(evicted.index, evicted.T_w_c, lambda: dep[::2, ::2])
     assert [f.index for f in far] == [0, 2] and [f.index for f in h] == [4, 5]
-    # a loop closure moves the world by 5 cm along y: the history learns it from the poses, the far frames follow
+    # the kept frames' poses move by 5 cm along y: update_poses reports the oldest one's correction
     shift = make_pose(None, np.array([0.0, 0.05, 0.0]))
     corr = h.update_poses({4.0: shift @ h.back(2).T_w_c, 5.0: shift @ h.back(1).T_w_c})
     assert np.allclose(corr, shift)
-    far.correct(corr)
-    assert np.allclose([f.T_w_c[:3, 3] for f in far], [[0.0, 0.05, 0.0], [0.2, 0.05, 0.0]])
     assert h.update_poses({4.0: h.back(2).T_w_c}) is None  # nothing changed
+
+    # through the screener: local BA's millimetres keep the far frames, a loop closure's decimetres drop them
+    frames = _slow_box_frames()
+    uv = np.array([[320.0, 240.0]])
+    cfg = ScreeningConfig(multiframe=MultiFrameConfig(offsets=(1, 2), lk_offset=0, far_every=3, far_count=4))
+    s = Screener(("multiframe",), cfg)
+    poses = {}
+    for f, _ in frames:
+        s.screen(f, uv, None, context=ScreeningContext(se3_inv(f.T_w_c_gt), dict(poses)))
+        poses[float(f.timestamp)] = f.T_w_c_gt
+    stale = {f.index for f in s.memory.far}
+    assert len(stale) == 4
+    jitter = make_pose(None, np.array([0.002, 0.0, 0.0]))
+    s.screen(frames[-1][0], uv, None, context=ScreeningContext(None, {t: jitter @ T for t, T in poses.items()}))
+    assert len(s.memory.far) == 4
+    loop = make_pose(None, np.array([0.0, 0.2, 0.0]))
+    s.screen(frames[-1][0], uv, None, context=ScreeningContext(None, {t: loop @ T for t, T in poses.items()}))
+    assert not stale & {f.index for f in s.memory.far}  # only a frame leaving the history since, with its new pose
+    with pytest.raises(ValueError, match="far_min_filter_cells"):
+        MultiFrameConfig(far_min_filter_cells=-1)
