@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["PastFrame", "FrameHistory", "reduce_depth"]
+__all__ = ["PastFrame", "FrameHistory", "FarFrame", "FarFrames", "reduce_depth"]
 
 
 def reduce_depth(depth: np.ndarray, factor: int, max_spread: float = 0.05, min_valid: float = 0.25) -> np.ndarray:
@@ -70,14 +70,10 @@ class PastFrame:
     cache: dict = field(default_factory=dict)
 
 
-class FrameHistory:
-    """The last ``length`` screened frames, newest last."""
+class _Kept:
+    """Frames kept in a bounded deque, oldest first: length, iteration, ``clear``."""
 
-    def __init__(self, length: int) -> None:
-        if length < 1:
-            raise ValueError(f"FrameHistory: length must be >= 1, got {length}")
-        self.length = int(length)
-        self._frames: deque[PastFrame] = deque(maxlen=self.length)
+    _frames: deque
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -88,21 +84,45 @@ class FrameHistory:
     def clear(self) -> None:
         self._frames.clear()
 
+
+class FrameHistory(_Kept):
+    """The last ``length`` screened frames, newest last."""
+
+    def __init__(self, length: int) -> None:
+        if length < 1:
+            raise ValueError(f"FrameHistory: length must be >= 1, got {length}")
+        self.length = int(length)
+        self._frames: deque[PastFrame] = deque(maxlen=self.length)
+
     @property
     def last(self) -> PastFrame | None:
         return self._frames[-1] if self._frames else None
 
-    def push(self, frame: PastFrame) -> None:
+    def push(self, frame: PastFrame) -> PastFrame | None:
+        """Keep ``frame``; returns the oldest frame when it falls out of the history, else None."""
+        evicted = self._frames[0] if len(self._frames) == self.length else None
         self._frames.append(frame)
+        return evicted
 
-    def update_poses(self, poses: dict[float, np.ndarray]) -> None:
-        """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp)."""
+    def update_poses(self, poses: dict[float, np.ndarray]) -> np.ndarray | None:
+        """Set the pose of every kept frame whose timestamp is in ``poses`` (T_w_c by timestamp).
+
+        Returns the correction ``T_new T_old^-1`` of the oldest kept frame that had a pose (what local BA
+        or a loop closure did to the world around it: the screener drops its far frames after a large one),
+        or None when no known pose changed."""
         if not poses:
-            return
+            return None
+        correction = None
         for f in self._frames:
             T = poses.get(float(f.timestamp))
             if T is not None:
-                f.T_w_c = np.asarray(T, np.float64)
+                T = np.asarray(T, np.float64)
+                if correction is None and f.T_w_c is not None:
+                    correction = T @ np.linalg.inv(f.T_w_c)
+                f.T_w_c = T
+        if correction is not None and np.allclose(correction, np.eye(4), atol=1e-9):
+            return None
+        return correction
 
     def back(self, offset: int) -> PastFrame | None:
         """The frame ``offset`` positions before the newest one would be pushed (1 = the last one)."""
@@ -125,3 +145,35 @@ class FrameHistory:
                         out.append(f)
                     break
         return out
+
+
+@dataclass(eq=False)
+class FarFrame:
+    """A frame kept beyond the history for the free-space test (:mod:`.multiframe`): only its
+    reduced depth, eroded (``(h, w)`` float32 m), and its pose (``T_w_c``, as last known)."""
+
+    index: int
+    T_w_c: np.ndarray
+    depth_min: np.ndarray
+
+
+class FarFrames(_Kept):
+    """Frames older than the history, one every ``every`` frames, the last ``count`` of them: what
+    the place looked like before a slow mover got there (ours; ``docs/robustness.md``)."""
+
+    def __init__(self, every: int, count: int) -> None:
+        if every < 1 or count < 0:
+            raise ValueError(f"FarFrames: every >= 1 and count >= 0 required, got every={every}, count={count}")
+        self.every = int(every)
+        self._frames: deque[FarFrame] = deque(maxlen=max(int(count), 1))
+        self.count = int(count)
+
+    def offer(self, index: int, T_w_c: np.ndarray | None, depth_min) -> bool:
+        """Keep a frame leaving the history when it has a pose and ``every`` frames passed since the
+        last one kept; ``depth_min`` is called only then (it computes the eroded reduced depth)."""
+        if self.count == 0 or T_w_c is None:
+            return False
+        if self._frames and index - self._frames[-1].index < self.every:
+            return False
+        self._frames.append(FarFrame(int(index), np.asarray(T_w_c, np.float64).copy(), np.asarray(depth_min(), np.float32)))
+        return True

@@ -74,6 +74,10 @@ class MultiFrameConfig:
     min_filter_px: int = 2  # radius of the minimum filter on the earlier frame's depth (full-res px); ours
     factor: int = 4  # reduction of the dense grid (4 -> 160x120 at 640x480); ours
     border_px: float = 1.0  # projections closer than this to the image edge give no verdict (px); ours
+    far_every: int = 16  # a frame leaving the history is kept as a far frame when this many frames passed since the last one; ours
+    far_count: int = 8  # far frames kept (reduced depth and pose only; 8 x 16 frames = 4 s at 30 Hz); 0 = off; ours
+    far_min_filter_cells: int = 3  # minimum filter on a far frame's reduced depth (cells of `factor` px): covers the pose drift of seconds (3 cells = 12 px, 1.3 deg); ours
+    far_reset_m: float = 0.05  # a correction of the kept poses larger than this (a loop closure) drops the far frames (m); ours
 
     def __post_init__(self) -> None:
         if not self.offsets or any(int(o) < 1 for o in self.offsets):
@@ -84,6 +88,12 @@ class MultiFrameConfig:
             raise ValueError("MultiFrameConfig: min_filter_px >= 0, factor >= 1 and border_px >= 0 required")
         if self.lk_offset < 0 or self.reprojection_px <= 0 or self.direction_min_px < 0:
             raise ValueError("MultiFrameConfig: lk_offset must be >= 0 (frames), reprojection_px > 0 and direction_min_px >= 0 (px)")
+        if self.far_every < 1:
+            raise ValueError(f"MultiFrameConfig.far_every must be >= 1 (frames), got {self.far_every}")
+        if self.far_min_filter_cells < 0 or self.far_reset_m <= 0:
+            raise ValueError("MultiFrameConfig: far_min_filter_cells must be >= 0 (cells) and far_reset_m > 0 (m)")
+        if self.far_count < 0:
+            raise ValueError(f"MultiFrameConfig.far_count must be >= 0 (frames kept; 0 = off), got {self.far_count}")
 
     @property
     def history_length(self) -> int:

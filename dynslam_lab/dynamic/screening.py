@@ -53,7 +53,7 @@ import numpy as np
 
 from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
 from .context import ScreeningContext
-from .history import FrameHistory
+from .history import FarFrames, FrameHistory
 from .oracle import OracleScreener
 from .stages import DETECTION_STAGES, STAGE_FUNCTIONS, FrameWork, ScreenerMemory, combine, finish, restoration_stage
 from .table import KeypointTable, check_uv
@@ -124,7 +124,8 @@ class Screener:
         self.name = name or ",".join(self.stages)
         cfg = self.config
         self.memory = ScreenerMemory(FrameHistory(cfg.multiframe.history_length + 1),
-                                     MovingMapPoints(cfg.temporal.max_moving_points), cfg.depth_ransac.seed)
+                                     MovingMapPoints(cfg.temporal.max_moving_points), cfg.depth_ransac.seed,
+                                     FarFrames(cfg.multiframe.far_every, cfg.multiframe.far_count))
         #: the reference pose (:class:`~dynslam_lab.dynamic.reference_pose.ReferencePose`) the last frame was
         #: judged against, or None
         self.last_reference = None
@@ -178,7 +179,9 @@ class Screener:
         if last is not None and last.gray.shape != frame.gray.shape:
             self.reset()  # a new image size: the history does not apply
         if context is not None:
-            mem.history.update_poses(context.poses)
+            correction = mem.history.update_poses(context.poses)
+            if correction is not None and np.linalg.norm(correction[:3, 3]) > self.config.multiframe.far_reset_m:
+                mem.far.clear()  # a loop closure moved the world: the far frames' poses are stale
         w = FrameWork(frame, uv, detections, context, self.config, mem)
         for name in self.stages:
             fn = STAGE_FUNCTIONS.get(name)
@@ -220,7 +223,7 @@ class Screener:
                 for past in mem.history:  # a break in the chain: start a new one here
                     past.T_w_c = None
                 T_w_c = np.eye(4)
-        mem.history.push(w.past_frame(region, T_w_c))
+        w.remember(region, T_w_c)
 
 
 def build_screener(filters: str, config: ScreeningConfig | None = None) -> Screener | OracleScreener | None:

@@ -39,7 +39,7 @@ from .depth_ransac import screen_boxes
 from .epipolar import epipolar_check, fundamental_from_pose, track_lk
 from .flow import flow_regions
 from .geometric_rule import level_rule_verdict
-from .history import FrameHistory, PastFrame, reduce_depth
+from .history import FarFrames, FrameHistory, PastFrame, reduce_depth
 from .motion_probability import restore_by_motion_probability
 from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
 from .multiview import multiview_check
@@ -67,6 +67,7 @@ class ScreenerMemory:
     history: FrameHistory
     moving_points: MovingMapPoints
     seed: int
+    far: FarFrames = field(default_factory=lambda: FarFrames(1, 0))  # frames older than the history (multiframe)
     rng: np.random.Generator = field(init=False)
     own_pose: np.ndarray | None = None  # T_w_c chained from two-frame rough poses when no SLAM context comes
 
@@ -75,6 +76,7 @@ class ScreenerMemory:
 
     def reset(self) -> None:
         self.history.clear()
+        self.far.clear()
         self.moving_points.clear()
         self.rng = np.random.default_rng(self.seed)
         self.own_pose = None
@@ -247,6 +249,14 @@ class FrameWork:
                 out[key] = value
         return out
 
+    def remember(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> None:
+        """Push this frame into the history; the frame that falls out of it may become a far frame."""
+        evicted = self.memory.history.push(self.past_frame(region, T_w_c))
+        if evicted is not None and evicted.depth.shape == self.shape:
+            f = self.config.multiframe.factor
+            r = self.config.multiframe.far_min_filter_cells
+            self.memory.far.offer(evicted.index, evicted.T_w_c, lambda: eroded_depth(_past_small_depth(evicted, f), r))
+
     def past_frame(self, region: np.ndarray | None, T_w_c: np.ndarray | None) -> PastFrame:
         """This frame as the memory keeps it for the next ones."""
         past = PastFrame(self.frame.index, float(self.frame.timestamp), self.gray, self.frame.depth,
@@ -411,10 +421,23 @@ def multiframe_stage(w: FrameWork) -> None:
     P, keep = w.grid_points()
     grid_refs = [(f.T_w_c, _cached(f, "small_min", lambda f=f: eroded_depth(_past_small_depth(f, cfg.factor), 1)))
                  for f in refs]
-    g = free_space_test(transform_points(T_w_c, P), grid_refs, cam, cfg)
+    P_w = transform_points(T_w_c, P)
+    g = free_space_test(P_w, grid_refs, cam, cfg)
     h, wd = small.shape
     viol = np.zeros(h * wd, np.int64)
     viol[keep] = g.violations
+    # far frames (older than the history, reduced depth only): they saw the place before a slow mover
+    # covered it; violations only (their agreement would confirm a mover that has stood there since)
+    far_refs = [(f.T_w_c, f.depth_min) for f in w.memory.far if f.depth_min.shape == small.shape]
+    if far_refs:
+        t0 = time.perf_counter()
+        fk = free_space_test(X_w, far_refs, cam, cfg)
+        far_viol = np.zeros(n)
+        far_viol[ok] = fk.violations
+        col |= far_viol > 0
+        w.values["far_violations"] = far_viol
+        viol[keep] += free_space_test(P_w, far_refs, cam, cfg).violations
+        w.timings["far_frames"] = _ms(t0)
     agree = np.zeros(h * wd, np.int64)
     agree[keep] = g.agreements
     occluded = np.full(h * wd, len(refs), np.int64)

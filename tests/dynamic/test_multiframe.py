@@ -125,3 +125,101 @@ def test_a_moving_camera_and_an_earlier_pose_give_the_same_verdicts_as_a_moved_p
     fs = free_space_test(X_w, [(T_w_j, d_j)], CAM, CFG)
     assert fs.violations.tolist() == [1, 0]
     assert np.allclose(transform_points(se3_inv(T_w_j), X_w), X_j)
+
+
+def _slow_box_frames(n: int = 17, arrive: int = 8):
+    """A wall at 3 m seen by a camera sliding 1 cm per frame; from frame ``arrive`` a box at 1.5 m
+    stands in the middle of the view and creeps 0.5 px per frame (truth: the box's pixels)."""
+    from dynslam_lab.datasets.frame import Frame
+
+    h, w = CAM.height, CAM.width
+    wall_tex, box_tex = texture(h, w + 200, 3), texture(h, w, 4)
+    out = []
+    for k in range(n):
+        tx = 0.01 * k
+        dx = int(round(CAM.fx * tx / 3.0))
+        gray = wall_tex[:, dx : dx + w].copy()
+        depth = np.full((h, w), 3.0, np.float32)
+        box = np.zeros((h, w), bool)
+        if k >= arrive:
+            x0 = 250 + int((k - arrive) * 0.5) - int(round(CAM.fx * tx / 1.5)) + int(round(CAM.fx * 0.01 * arrive / 1.5))
+            box[160:320, x0 : x0 + 140] = True
+            gray[box] = box_tex[box]
+            depth[box] = 1.5
+        rgb = np.repeat(gray[:, :, None], 3, axis=2)
+        T_w_c = make_pose(np.eye(3), np.array([tx, 0.0, 0.0]))
+        out.append((Frame(index=k, timestamp=k / 30.0, rgb=rgb, depth=depth, camera=CAM, T_w_c_gt=T_w_c), box))
+    return out
+
+
+def test_far_frames_find_a_slow_mover_that_the_recent_frames_saw_standing_there():
+    from dynslam_lab.dynamic.config import ScreeningConfig
+    from dynslam_lab.dynamic.context import ScreeningContext
+    from dynslam_lab.dynamic.screening import Screener
+
+    frames = _slow_box_frames()
+    ys, xs = np.mgrid[8 : CAM.height - 8 : 12, 8 : CAM.width - 8 : 12]
+    uv = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(float)
+
+    def last_verdict(far_count: int):
+        cfg = ScreeningConfig(multiframe=MultiFrameConfig(offsets=(1, 2), lk_offset=0, far_every=3, far_count=far_count))
+        s = Screener(("multiframe",), cfg)
+        poses = {}
+        for f, _ in frames:
+            table = s.screen(f, uv, None, context=ScreeningContext(se3_inv(f.T_w_c_gt), dict(poses)))
+            poses[float(f.timestamp)] = f.T_w_c_gt
+        return s, table.dynamic
+
+    box = frames[-1][1]
+    on_box = box[uv[:, 1].astype(int), uv[:, 0].astype(int)]
+    s, far = last_verdict(4)
+    # history 14, 15 (+16 being screened); far frames 3, 6, 9, 12 (kept one every 3 as they leave the history)
+    assert [f.index for f in s.memory.far] == [3, 6, 9, 12]
+    _, near = last_verdict(0)
+    assert far[on_box].mean() >= 0.95  # frames 3 and 6 saw the wall where the box stands now
+    assert not far[~on_box].any()  # no static point lies where any earlier frame saw through
+    assert near[on_box].mean() <= 0.1  # the recent frames saw the box there too: only its creeping edge
+    with pytest.raises(ValueError, match="far_every"):
+        MultiFrameConfig(far_every=0)
+    with pytest.raises(ValueError, match="far_count"):
+        MultiFrameConfig(far_count=-1)
+
+
+def test_far_frames_are_dropped_when_a_loop_closure_moves_the_kept_poses():
+    from dynslam_lab.dynamic.config import ScreeningConfig
+    from dynslam_lab.dynamic.context import ScreeningContext
+    from dynslam_lab.dynamic.history import FarFrames, FrameHistory, PastFrame
+    from dynslam_lab.dynamic.screening import Screener
+
+    h, far = FrameHistory(2), FarFrames(every=2, count=2)
+    img, dep = np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.float32)
+    for k in range(6):
+        evicted = h.push(PastFrame(k, float(k), img, dep, T_w_c=make_pose(None, np.array([0.1 * k, 0, 0]))))
+        if evicted is not None:
+            far.offer(evicted.index, evicted.T_w_c, lambda: dep[::2, ::2])
+    assert [f.index for f in far] == [0, 2] and [f.index for f in h] == [4, 5]
+    # the kept frames' poses move by 5 cm along y: update_poses reports the oldest one's correction
+    shift = make_pose(None, np.array([0.0, 0.05, 0.0]))
+    corr = h.update_poses({4.0: shift @ h.back(2).T_w_c, 5.0: shift @ h.back(1).T_w_c})
+    assert np.allclose(corr, shift)
+    assert h.update_poses({4.0: h.back(2).T_w_c}) is None  # nothing changed
+
+    # through the screener: local BA's millimetres keep the far frames, a loop closure's decimetres drop them
+    frames = _slow_box_frames()
+    uv = np.array([[320.0, 240.0]])
+    cfg = ScreeningConfig(multiframe=MultiFrameConfig(offsets=(1, 2), lk_offset=0, far_every=3, far_count=4))
+    s = Screener(("multiframe",), cfg)
+    poses = {}
+    for f, _ in frames:
+        s.screen(f, uv, None, context=ScreeningContext(se3_inv(f.T_w_c_gt), dict(poses)))
+        poses[float(f.timestamp)] = f.T_w_c_gt
+    stale = {f.index for f in s.memory.far}
+    assert len(stale) == 4
+    jitter = make_pose(None, np.array([0.002, 0.0, 0.0]))
+    s.screen(frames[-1][0], uv, None, context=ScreeningContext(None, {t: jitter @ T for t, T in poses.items()}))
+    assert len(s.memory.far) == 4
+    loop = make_pose(None, np.array([0.0, 0.2, 0.0]))
+    s.screen(frames[-1][0], uv, None, context=ScreeningContext(None, {t: loop @ T for t, T in poses.items()}))
+    assert not stale & {f.index for f in s.memory.far}  # only a frame leaving the history since, with its new pose
+    with pytest.raises(ValueError, match="far_min_filter_cells"):
+        MultiFrameConfig(far_min_filter_cells=-1)

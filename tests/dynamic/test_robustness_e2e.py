@@ -32,7 +32,10 @@ def test_geometry_alone_removes_movers_no_detector_names(runs):
     assert geo["ate_rmse_m"] <= 0.012  # ... geometry alone keeps the camera on the static world (0.0019 m; 0.0032 m with bf 40)
     assert geo["ate_rmse_m"] <= 0.2 * none["ate_rmse_m"]
     assert geo["ate_rmse_m"] <= 4.0 * max(ref["ate_rmse_m"], 0.002)
-    assert geo["precision"] >= 0.8 and geo["recall"] >= 0.5  # measured 0.88 / 0.59: slow starts are missed
+    # measured 0.72 / 0.62 (0.88 / 0.59 before the far frames): slow starts are missed, and the boxes stop at
+    # frame ~48, after which the far frames (which saw the floor there) keep them dynamic for the tracker while
+    # the renderer's truth counts an instance dynamic only in the frames it moves (docs/robustness.md)
+    assert geo["precision"] >= 0.65 and geo["recall"] >= 0.55
     assert geo["lost"] == 0
 
 
