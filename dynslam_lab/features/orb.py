@@ -27,6 +27,7 @@ The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -137,15 +138,29 @@ def level_quotas(cfg: OrbConfig) -> np.ndarray:
     return q
 
 
+# One cv2.ORB per thread and parameter set: creating it costs ~4 ms, as much as a sixth of an
+# extraction (docs/speed.md); an ORB object is not shared between threads (extraction runs in the
+# run loop's worker thread and in notebooks in the main one).
+_ORB_OBJECTS = threading.local()
+
+
+def _orb_object(cfg: OrbConfig, fast_threshold: int) -> cv2.ORB:
+    key = (int(np.ceil(cfg.n_features * cfg.oversample)), float(cfg.scale_factor), int(cfg.n_levels),
+           int(cfg.edge_threshold), int(cfg.patch_size), int(fast_threshold))
+    cache = getattr(_ORB_OBJECTS, "by_key", None)
+    if cache is None:
+        cache = _ORB_OBJECTS.by_key = {}
+    orb = cache.get(key)
+    if orb is None:
+        if len(cache) >= 8:  # a sweep over ORB parameters: keep the cache small
+            cache.clear()
+        orb = cache[key] = cv2.ORB_create(nfeatures=key[0], scaleFactor=key[1], nlevels=key[2],
+                                          edgeThreshold=key[3], patchSize=key[4], fastThreshold=key[5])
+    return orb
+
+
 def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int) -> tuple[cv2.ORB, list]:
-    orb = cv2.ORB_create(
-        nfeatures=int(np.ceil(cfg.n_features * cfg.oversample)),
-        scaleFactor=float(cfg.scale_factor),
-        nlevels=int(cfg.n_levels),
-        edgeThreshold=int(cfg.edge_threshold),
-        patchSize=int(cfg.patch_size),
-        fastThreshold=int(fast_threshold),
-    )
+    orb = _orb_object(cfg, fast_threshold)
     return orb, list(orb.detect(gray, None))
 
 

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import threading
+
 import cv2
 import numpy as np
 import pytest
 
+from dynslam_lab.features import orb as orb_module
 from dynslam_lab.features.orb import Features, OrbConfig, extract_features, level_quotas, scale_factors
 from tests.conftest import shared_file
 
@@ -77,3 +80,22 @@ def test_bad_input_errors(gray):
         OrbConfig(scale_factor=1.0)
     with pytest.raises(ValueError, match="Features.octave"):
         Features(np.zeros((3, 2)), np.zeros(2), np.zeros(3), np.zeros(3), np.zeros((3, 32), np.uint8))
+
+
+def test_reused_orb_object_gives_the_same_features_as_a_fresh_one(gray):
+    """The per-thread cv2.ORB cache: an extraction after others (other images, other thresholds in
+    between) equals one made with new ORB objects, and another thread gets its own object."""
+    cfg = OrbConfig(n_features=500)
+    orb_module._ORB_OBJECTS.by_key = {}
+    fresh = extract_features(gray, cfg)
+    extract_features(np.ascontiguousarray(gray[::-1]), cfg)  # other images through the same objects
+    extract_features(gray, OrbConfig(n_features=200, fast_threshold=12))
+    again = extract_features(gray, cfg)
+    for name in ("uv", "octave", "angle", "response", "descriptors"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name))
+    mine = orb_module._orb_object(cfg, cfg.fast_threshold)
+    theirs = []
+    t = threading.Thread(target=lambda: theirs.append(orb_module._orb_object(cfg, cfg.fast_threshold)))
+    t.start()
+    t.join()
+    assert theirs[0] is not mine and orb_module._orb_object(cfg, cfg.fast_threshold) is mine
