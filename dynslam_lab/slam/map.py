@@ -369,12 +369,18 @@ class Map:
         rows = np.concatenate(parts)
         return rows[self._live[rows]]
 
+    @staticmethod
+    def _order(kf: np.ndarray, kp: np.ndarray) -> np.ndarray:
+        """Order of rows by keyframe id then keypoint index. Rows are appended keyframe by keyframe,
+        keypoints ascending, so the keys come in long sorted runs: a stable (merge) sort is ~O(n)."""
+        return np.argsort(kf * (1 << 24) + kp, kind="stable")
+
     def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """All live observations ``(kf_id, point_id, keypoint_index, octave)``, by keyframe then keypoint."""
         self._sync()
         rows = np.flatnonzero(self._live[: self._rows])
         t = self._t[:, rows]
-        o = np.lexsort((t[2], t[0]))
+        o = self._order(t[0], t[2])
         return t[0, o], t[1, o], t[2, o], t[3, o]
 
     def observations_of(self, ids: np.ndarray, with_octave: bool = False) -> tuple[np.ndarray, ...]:
@@ -383,7 +389,7 @@ class Map:
         self._sync()
         rows = self._rows_of(ids)
         kf, pt, kp, octave = self._t[:, rows]
-        sel = np.lexsort((kp, kf))
+        sel = self._order(kf, kp)
         if with_octave:
             return kf[sel], pt[sel], kp[sel], octave[sel]
         return kf[sel], pt[sel], kp[sel]
