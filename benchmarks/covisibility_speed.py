@@ -1,20 +1,22 @@
-"""Speed of ``Map.covisibility`` on a large map (~1000 keyframes), before/after the point index.
+"""Speed of ``Map.covisibility`` on a large map (~1000 keyframes) after one map change.
 
-Between two map changes (a keyframe, new or culled points, a fusion: every change calls
-``Map.invalidate``) the system asks the covisibility of some keyframes, several of them more
-than once (local-map tracking every frame, the keyframe decision, fusion, culling). The table
-gives the total time of ``Q`` such queries after one change (``Q/2`` keyframes, each asked twice):
+Between two map changes (a keyframe, new or culled points, a fusion) the system asks the
+covisibility of some keyframes, several of them more than once (local-map tracking every frame, the
+keyframe decision, fusion, culling, loop detection). The table gives the total time of one change
+(a keyframe re-observes 20 points and loses 20, then ``Map.invalidate([its id])``) and ``Q`` queries
+after it (``Q/2`` keyframes, each asked twice):
 
-* ``before``: the previous implementation, an ``np.isin`` scan of the whole observation table
-  per query, no cache;
-* ``after``: ``Map.covisibility`` as it is now: a cache per keyframe, the first
-  ``Map.INDEX_AFTER_SCANS`` misses answered by a scan, later ones by the point index (CSR,
-  built once by a counting sort);
-* ``index``: the cost of building the point index once; ``scan``: one scan.
+* ``rebuild``: the code before the incremental table: the whole observation table rebuilt from the
+  keyframes' ``map_point_ids`` after every change, then one ``np.isin`` scan of it per query (the
+  point index built after a few scans only cut the scans, not the rebuild);
+* ``incremental``: ``Map.covisibility`` as it is now: the change costs O(its observations) (rows
+  killed and appended, the covisibility of the keyframes sharing its points dropped), a query
+  O(the rows of its points);
+* ``full sync``: ``Map.invalidate()`` with no keyframe named (every keyframe compared with the
+  table) and one query; ``compact``: one compaction of the table (amortised: once per 25 % rows).
 
-Both include the rebuild of the observation table after the change (the same for both; the
-``table`` column). The map is synthetic: ``K`` keyframes of 1000 keypoints, each making 150
-points and re-observing 70 % of the points of the 6 keyframes before it. Usage::
+The map is synthetic: ``K`` keyframes of 1000 keypoints, each making 150 points and re-observing
+70 % of the points of the 6 keyframes before it. Usage::
 
     PYTHONPATH=. python benchmarks/covisibility_speed.py                 # K = 250, 500, 1000
     PYTHONPATH=. python benchmarks/covisibility_speed.py --keyframes 1000 --repeats 5
@@ -55,25 +57,45 @@ def build_map(n_kf: int, n_kp: int = 1000, new: int = 150, window: int = 6, seed
     return mp
 
 
-def covisibility_scan(mp: Map, kf_id: int) -> dict[int, int]:
-    """The previous ``Map.covisibility``: an ``np.isin`` scan of the whole observation table."""
+def rebuild_table(mp: Map) -> tuple[np.ndarray, np.ndarray]:
+    """The observation table ``(kf id, point id)`` rebuilt from every keyframe (the code before)."""
+    kfs = list(mp.keyframes.values())
+    has = [k.map_point_ids >= 0 for k in kfs]
+    return (np.concatenate([np.full(int(h.sum()), k.id, np.int64) for k, h in zip(kfs, has)]),
+            np.concatenate([k.map_point_ids[h] for k, h in zip(kfs, has)]))
+
+
+def covisibility_scan(table: tuple[np.ndarray, np.ndarray], mp: Map, kf_id: int) -> dict[int, int]:
+    """Covisibility by an ``np.isin`` scan of the whole table (the code before, and the reference)."""
     kf = mp.keyframes[kf_id]
     ids = kf.map_point_ids[kf.map_point_ids >= 0]
-    kf_col, pt_col = mp._table()[:2]
+    kf_col, pt_col = table
     u, c = np.unique(kf_col[np.isin(pt_col, ids)], return_counts=True)
     out = {int(a): int(b) for a, b in zip(u, c)}
     out.pop(kf_id, None)
     return out
 
 
-def _total_ms(fn, mp: Map, queries: list[int], repeats: int) -> float:
-    """Median over ``repeats`` of: one map change, then ``fn`` on every query."""
+def change(mp: Map, rng: np.random.Generator) -> list[int]:
+    """One map change: a random keyframe drops 20 observations and re-observes 20 other points."""
+    kid = int(rng.choice(mp.keyframe_ids()))
+    kf = mp.keyframes[kid]
+    has = np.flatnonzero(kf.map_point_ids >= 0)
+    kf.map_point_ids[rng.choice(has, 20, replace=False)] = -1
+    free = np.flatnonzero(kf.map_point_ids < 0)
+    new = np.setdiff1d(mp.point_ids(), kf.map_point_ids)
+    kf.map_point_ids[rng.choice(free, 20, replace=False)] = rng.choice(new, 20, replace=False)
+    return [kid]
+
+
+def _total_ms(fn, mp: Map, queries: list[int], repeats: int, rng: np.random.Generator) -> float:
+    """Median over ``repeats`` of: one map change (untimed edit, timed ``invalidate``), then ``fn(queries)``."""
     out = []
     for _ in range(repeats):
-        mp.invalidate()
+        kids = change(mp, rng)
         t0 = time.perf_counter()
-        for q in queries:
-            fn(q)
+        mp.invalidate(kids)
+        fn(queries)
         out.append(1e3 * (time.perf_counter() - t0))
     return float(np.median(out))
 
@@ -84,33 +106,42 @@ def main() -> None:
     ap.add_argument("--queries", type=int, nargs="+", default=[2, 10, 40, 160], help="queries after a change (Q)")
     ap.add_argument("--repeats", type=int, default=3, help="repeats per figure, median (default 3)")
     args = ap.parse_args()
-    print(f"{'keyframes':>9} {'observations':>12} {'table ms':>8} {'scan ms':>7} {'index ms':>8} {'Q':>4} "
-          f"{'before ms':>9} {'after ms':>8} {'before/after':>12}")
+    print(f"{'keyframes':>9} {'observations':>12} {'full sync ms':>12} {'compact ms':>10} {'Q':>4} "
+          f"{'rebuild ms':>10} {'incremental ms':>14} {'rebuild/incremental':>19}")
     for n_kf in args.keyframes:
         mp = build_map(n_kf)
         rng = np.random.default_rng(1)
         ids = mp.keyframe_ids()
-        for q in rng.choice(ids, 20, replace=False):  # same answers before timing anything
-            assert mp.covisibility(int(q)) == covisibility_scan(mp, int(q)), "covisibility differs from the scan"
-        table = _total_ms(lambda q: mp._table(), mp, [0], args.repeats)
-        mp._table()
+        for _ in range(3):  # same answers as the scan, also after changes, before timing anything
+            mp.invalidate(change(mp, rng))
+            table = rebuild_table(mp)
+            for q in rng.choice(ids, 20, replace=False):
+                assert mp.covisibility(int(q)) == covisibility_scan(table, mp, int(q)), "covisibility differs from the scan"
         t0 = time.perf_counter()
-        for q in ids[:20]:
-            covisibility_scan(mp, q)
-        scan = 1e3 * (time.perf_counter() - t0) / 20
+        mp.invalidate()
+        mp.covisibility(ids[0])
+        full = 1e3 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
-        for _ in range(5):
-            mp._pt_index = None
-            mp._point_index()
-        index = 1e3 * (time.perf_counter() - t0) / 5
+        mp._compact()
+        compact = 1e3 * (time.perf_counter() - t0)
         n_obs = len(mp._table()[0])
         for n_q in args.queries:
             kfs = [int(k) for k in rng.choice(ids, max(n_q // 2, 1), replace=False)]
             queries = kfs + kfs
-            before = _total_ms(lambda q: covisibility_scan(mp, q), mp, queries, args.repeats)
-            after = _total_ms(mp.covisibility, mp, queries, args.repeats)
-            print(f"{n_kf:>9} {n_obs:>12} {table:>8.1f} {scan:>7.2f} {index:>8.1f} {len(queries):>4} "
-                  f"{before:>9.1f} {after:>8.1f} {before / after:>12.2f}", flush=True)
+
+            def before(qs):
+                table = rebuild_table(mp)
+                for q in qs:
+                    covisibility_scan(table, mp, q)
+
+            def after(qs):
+                for q in qs:
+                    mp.covisibility(q)
+
+            b = _total_ms(before, mp, queries, args.repeats, rng)
+            a = _total_ms(after, mp, queries, args.repeats, rng)
+            print(f"{n_kf:>9} {n_obs:>12} {full:>12.1f} {compact:>10.1f} {len(queries):>4} "
+                  f"{b:>10.1f} {a:>14.2f} {b / a:>19.1f}", flush=True)
 
 
 if __name__ == "__main__":

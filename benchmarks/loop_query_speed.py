@@ -179,16 +179,18 @@ def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = T
                     closer.on_keyframe(new, mp)
                     rows.append((len(mp.keyframes), closer.stage_ms[-1][1]))
             copy += 1
+    if stage:  # the frame loop's times first: the worker may have thousands of verifications left
+        _stage_table(rows, n_keyframes, background)
     closer.wait(mp)  # the worker's last verifications
     closer.close()
     if stage:
-        _stage_table(rows, closer, n_keyframes, background)
+        _verification_stats(closer)
     if correction:
         with blas_single_thread():
             time_correction(mp, made_from, cfg)
 
 
-def _stage_table(rows: list[tuple[int, float]], closer, n_keyframes: int, background: bool) -> None:
+def _stage_table(rows: list[tuple[int, float]], n_keyframes: int, background: bool) -> None:
     print(f"verification {'in the worker thread (config default)' if background else 'in the frame loop (--sync)'}")
     n = np.array([r[0] for r in rows])
     ms = np.array([r[1] for r in rows])
@@ -198,6 +200,10 @@ def _stage_table(rows: list[tuple[int, float]], closer, n_keyframes: int, backgr
         if sel.any():
             m = ms[sel]
             print(f"{f'{lo + 1}-{hi}':>12} {np.median(m):10.2f} {m.mean():9.2f} {np.percentile(m, 90):8.2f} {m.max():8.2f}")
+    print(flush=True)
+
+
+def _verification_stats(closer) -> None:
     reasons: dict[str, int] = {}
     for _, _, r, _ in closer.rejected:
         reasons[r] = reasons.get(r, 0) + 1

@@ -139,7 +139,7 @@ def replace_points(mp: Map, old: np.ndarray, new: np.ndarray) -> None:
     mp.n_visible[new] += mp.n_visible[old]
     mp.n_found[new] += mp.n_found[old]
     mp.alive[old] = False
-    mp.invalidate()
+    mp.invalidate(kf_ids)
 
 
 def _fuse_into(mp: Map, kf: KeyFrame, pids: np.ndarray, camera: PinholeCamera, radius: float, scale_factor: float,
@@ -182,7 +182,7 @@ def fuse_with_neighbours(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: Loca
         o, n = _fuse_into(mp, kf, nb_pts, camera, cfg.fuse_radius, scale_factor, view_cos)
         pairs_old.append(o)
         pairs_new.append(n)
-    mp.invalidate()
+    mp.invalidate([kf.id, *nbs])
     if not pairs_old:
         return 0
     a = np.concatenate(pairs_old)
@@ -258,7 +258,7 @@ def apply_ba_result(mp: Map, kfs: dict[int, KeyFrame], fixed: set[int], pts: np.
     for k in np.unique(o_kf[res.outlier]):  # loop over keyframes
         sel = res.outlier & (o_kf == k)
         mp.keyframes[int(k)].map_point_ids[o_kp[sel]] = -1
-    mp.invalidate()
+    mp.invalidate(np.unique(o_kf[res.outlier]))
     mp.update_geometry(pts)
 
 

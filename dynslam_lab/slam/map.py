@@ -8,7 +8,10 @@
   Its predicted level at distance ``d`` is ``ceil(log(max_dist / d) / log(f))``.
 * An **observation** is a (keyframe, keypoint) pair seeing a point. The single source of truth
   is each keyframe's ``map_point_ids``; the map keeps a flat observation table
-  (``obs_kf, obs_pt, obs_kp``) rebuilt from them on demand, so every query is vectorised.
+  (``kf, point, keypoint, octave`` rows) indexed by point, so every query is vectorised. The
+  table is kept up to date incrementally (an append-only table with dead rows, compacted now and
+  then): a change costs O(the observations changed), not O(all observations), see
+  :meth:`Map.invalidate` and docs/speed.md.
 * The **covisibility graph** weights an edge between two keyframes by the number of map points
   both observe (ORB-SLAM Sec. III-D). The **spanning tree** links each keyframe to the
   keyframe it shares most points with when created.
@@ -38,7 +41,10 @@ class Map:
     scale_factor, n_levels : ORB pyramid (for the scale-invariance distances).
     """
 
-    INDEX_AFTER_SCANS = 8  # observation queries answered by a table scan before the point index is built
+    # Compaction of the observation table (rebuild of its point index) once the rows added since the
+    # last one, or the dead rows, exceed this fraction of the indexed rows (amortised O(1) per row).
+    COMPACT_FRACTION = 0.25
+    COMPACT_MIN_ROWS = 4096
 
     def __init__(self, scale_factor: float = 1.2, n_levels: int = 8) -> None:
         self.scale_factor = float(scale_factor)
@@ -56,12 +62,26 @@ class Map:
         self.n_found = np.zeros(cap, np.int64)
         self.first_kf = np.zeros(cap, np.int64)
         self.rgb = np.zeros((cap, 3), np.uint8)
-        self._obs: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        # Index of the table by point id, CSR style (rows of point p: by_pt[start[p]:start[p + 1]]),
-        # and the covisibility dictionaries computed since the table was built; both go with it.
-        # The index is one tuple so that a reader never sees half of an old and half of a new one.
-        self._pt_index: tuple[np.ndarray, np.ndarray] | None = None
-        self._scans = 0  # queries answered by a scan since the table was built
+        # The observation table: rows [0, _rows) of kf, pt, kp, octave; a row dies (``_live`` False)
+        # when its observation goes. Rows [0, _n_base) are indexed by point CSR style (rows of point
+        # p: _by_pt[_start[p]:_start[p + 1]]); later rows are chained per point (``_head[p]`` the
+        # newest, ``_next[row]`` the one before). ``_row_of[kf id][keypoint]``: the row of each
+        # keypoint's observation (or -1), which is also what the table last saw of ``map_point_ids``.
+        cap = 4096
+        self._t = np.zeros((4, cap), np.int64)  # kf, pt, kp, octave
+        self._live = np.zeros(cap, bool)
+        self._next = np.full(cap, -1, np.int64)
+        self._rows = 0
+        self._n_dead = 0
+        self._n_base = 0
+        self._by_pt = np.zeros(0, np.int64)
+        self._start = np.zeros(1, np.int64)
+        self._head = np.full(1024, -1, np.int64)
+        self._count = np.zeros(1024, np.int64)  # live observations per point
+        self._row_of: dict[int, np.ndarray] = {}
+        self._dirty: set[int] = set()  # keyframes whose map_point_ids may have changed
+        self._all_dirty = False
+        # Covisibility dictionaries computed so far; a change drops those of the keyframes it touches.
         self._covis: dict[int, dict[int, int]] = {}
         self._next_kf_id = 0
         # Culled keyframes: id -> (parent id, T_parent_kf), so frames anchored to them keep a pose.
@@ -117,7 +137,7 @@ class Map:
         self.first_kf[ids] = kf.id
         self.rgb[ids] = 0 if rgb is None else rgb
         kf.map_point_ids[kp_idx] = ids
-        self.invalidate()
+        self.invalidate([kf.id])
         self.update_geometry(ids)
         return ids
 
@@ -131,7 +151,7 @@ class Map:
         for kid in np.unique(kf_ids):  # loop over keyframes, not keypoints
             sel = kf_ids == kid
             self.keyframes[int(kid)].map_point_ids[kp[sel]] = -1
-        self.invalidate()
+        self.invalidate(np.unique(kf_ids))
 
     # ------------------------------------------------------------ keyframes
     def new_keyframe_id(self) -> int:
@@ -144,7 +164,7 @@ class Map:
         if kf.id in self.keyframes:
             raise ValueError(f"keyframe id {kf.id} already in the map")
         self.keyframes[kf.id] = kf
-        self.invalidate()
+        self.invalidate([kf.id])
         if kf.parent_id < 0 and len(self.keyframes) > 1:
             cov = self.covisibility(kf.id)
             if cov:
@@ -167,7 +187,7 @@ class Map:
         if parent_now is not None:
             self.removed_anchor[kf_id] = (kf.parent_id, parent_now.T_c_w @ kf.T_w_c)
         del self.keyframes[kf_id]
-        self.invalidate()
+        self.invalidate([kf_id])
         parent = self.keyframes.get(kf.parent_id)
         if parent is not None:
             parent.children.discard(kf_id)
@@ -188,71 +208,188 @@ class Map:
             self.alive[ids[n == 0]] = False
 
     # --------------------------------------------------------- observations
-    def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Flat observation table ``(kf_id, point_id, keypoint_index, octave)``, cached."""
-        if self._obs is None:
-            kfs = list(self.keyframes.values())
-            if not kfs:
-                z = np.zeros(0, np.int64)
-                self._obs = (z, z, z, z)
-            else:
-                has = [k.map_point_ids >= 0 for k in kfs]
-                self._obs = (
-                    np.concatenate([np.full(int(h.sum()), k.id, np.int64) for k, h in zip(kfs, has)]),
-                    np.concatenate([k.map_point_ids[h] for k, h in zip(kfs, has)]),
-                    np.concatenate([np.flatnonzero(h) for h in has]),
-                    np.concatenate([k.octave[h] for k, h in zip(kfs, has)]),
-                )
-        return self._obs
+    def invalidate(self, kf_ids=None) -> None:
+        """Call after changing keyframes' ``map_point_ids`` directly: ``kf_ids`` those keyframes
+        (None: any keyframe may have changed; every keyframe is then compared with the table,
+        O(keyframes x keypoints) numpy compares). The table catches up at the next query."""
+        if kf_ids is None:
+            self._all_dirty = True
+        else:
+            self._dirty.update(int(k) for k in np.asarray(kf_ids, np.int64).reshape(-1).tolist())
 
-    def invalidate(self) -> None:
-        """Call after changing any keyframe's ``map_point_ids`` directly."""
-        self._obs = None
-        self._pt_index = None
-        self._scans = 0
-        self._covis = {}
+    def _ensure_rows(self, need: int) -> None:
+        cap = len(self._live)
+        if need <= cap:
+            return
+        new = max(need, 2 * cap)
+        t = np.zeros((4, new), np.int64)
+        t[:, :cap] = self._t
+        self._t = t
+        self._live = np.concatenate([self._live, np.zeros(new - cap, bool)])
+        self._next = np.concatenate([self._next, np.full(new - cap, -1, np.int64)])
 
-    def _point_index(self) -> tuple[np.ndarray, np.ndarray]:
-        """Rows of the observation table sorted by point id ``(n_obs,)``, and the first of them of
-        each point ``(n_points_total + 1,)``: a point's observations are one slice. Built once per
-        table, so ``observations_of`` costs O(its rows), not a scan of the table. The grouping is
-        a counting sort, O(observations + points): the table as a one-row sparse matrix (column =
-        point id, value = row) converted from CSR to CSC (4x faster than ``np.argsort`` at 1000
-        keyframes, benchmarks/covisibility_speed.py)."""
-        index = self._pt_index
-        if index is None:
-            pt = self._table()[1]
-            rows = sparse.csr_matrix((np.arange(len(pt)), pt, np.array([0, len(pt)])), shape=(1, max(self._n, 1))).tocsc()
-            index = (rows.data.astype(np.int64), rows.indptr.astype(np.int64))
-            self._pt_index = index
-        return index
+    def _ensure_points(self) -> None:
+        cap = len(self._head)
+        if self._n <= cap:
+            return
+        new = max(self._n, 2 * cap)
+        self._head = np.concatenate([self._head, np.full(new - cap, -1, np.int64)])
+        self._count = np.concatenate([self._count, np.zeros(new - cap, np.int64)])
+
+    def _sync(self) -> None:
+        """Bring the observation table up to date with the dirty keyframes' ``map_point_ids``:
+        kill the rows of observations that went, append rows for new ones, drop the covisibility
+        of every keyframe sharing a point whose observers changed."""
+        if not self._dirty and not self._all_dirty:
+            return
+        kids = set(self._row_of) | set(self.keyframes) if self._all_dirty else self._dirty
+        self._all_dirty = False
+        self._dirty = set()
+        self._ensure_points()
+        pt_col = self._t[1]
+        kill, add_kf, add_kp, add_pt, add_oct, add_slot, touched_kf = [], [], [], [], [], [], []
+        for k in sorted(kids):  # loop over keyframes
+            kf = self.keyframes.get(k)
+            rows = self._row_of.get(k)
+            if kf is None:
+                if rows is not None:
+                    kill.append(rows[rows >= 0])
+                    del self._row_of[k]
+                    touched_kf.append(k)
+                continue
+            cur = kf.map_point_ids
+            if rows is None or len(rows) != len(cur):
+                rows = np.full(len(cur), -1, np.int64)
+                self._row_of[k] = rows
+            old = np.where(rows >= 0, pt_col[np.maximum(rows, 0)], -1)
+            changed = np.flatnonzero(old != cur)
+            if len(changed) == 0:
+                continue
+            touched_kf.append(k)
+            r = rows[changed]
+            kill.append(r[r >= 0])
+            rows[changed] = -1
+            new = changed[cur[changed] >= 0]
+            add_kf.append(np.full(len(new), k, np.int64))
+            add_kp.append(new)
+            add_pt.append(cur[new])
+            add_oct.append(kf.octave[new])
+            add_slot.append((rows, new))
+        if not touched_kf:
+            return
+        touched_pt = []
+        if kill:
+            dead = np.concatenate(kill)
+            self._live[dead] = False
+            self._n_dead += len(dead)
+            np.subtract.at(self._count, pt_col[dead], 1)
+            touched_pt.append(pt_col[dead])
+        n_add = sum(len(x) for x in add_pt)
+        if n_add:
+            r0 = self._rows
+            self._ensure_rows(r0 + n_add)
+            rows_new = np.arange(r0, r0 + n_add)
+            pts = np.concatenate(add_pt)
+            self._t[:, r0:r0 + n_add] = [np.concatenate(add_kf), pts, np.concatenate(add_kp), np.concatenate(add_oct)]
+            self._live[rows_new] = True
+            self._rows += n_add
+            np.add.at(self._count, pts, 1)
+            touched_pt.append(pts)
+            at = r0
+            for rows, new in add_slot:  # loop over keyframes
+                rows[new] = np.arange(at, at + len(new))
+                at += len(new)
+            # chain the new rows per point (a point may appear twice in one batch)
+            o = np.argsort(pts, kind="stable")
+            ps, rs = pts[o], rows_new[o]
+            first = np.ones(len(ps), bool)
+            first[1:] = ps[1:] != ps[:-1]
+            nxt = np.empty(len(ps), np.int64)
+            nxt[first] = self._head[ps[first]]
+            nxt[~first] = rs[np.flatnonzero(~first) - 1]
+            self._next[rs] = nxt
+            last = np.ones(len(ps), bool)
+            last[:-1] = ps[1:] != ps[:-1]
+            self._head[ps[last]] = rs[last]
+        if self._covis:
+            for k in touched_kf:
+                self._covis.pop(k, None)
+            if touched_pt:
+                for k in np.unique(self._t[0][self._rows_of(np.concatenate(touched_pt))]).tolist():
+                    self._covis.pop(k, None)
+        lim = self.COMPACT_FRACTION * self._n_base + self.COMPACT_MIN_ROWS
+        if self._rows - self._n_base > lim or self._n_dead > lim:
+            self._compact()
+
+    def _compact(self) -> None:
+        """Drop the dead rows and index all rows by point: a counting sort, O(rows + points), the
+        table as a one-row sparse matrix (column = point id, value = row) converted from CSR to CSC
+        (4x faster than ``np.argsort`` at 1000 keyframes, benchmarks/covisibility_speed.py)."""
+        keep = np.flatnonzero(self._live[: self._rows])
+        remap = np.full(self._rows + 1, -1, np.int64)  # remap[-1] == -1
+        remap[keep] = np.arange(len(keep))
+        n = len(keep)
+        self._t[:, :n] = self._t[:, keep]
+        self._live[:n] = True
+        self._live[n:] = False
+        self._next[:] = -1
+        self._head[:] = -1
+        self._rows = self._n_base = n
+        self._n_dead = 0
+        for k, rows in self._row_of.items():  # loop over keyframes
+            self._row_of[k] = remap[rows]
+        pt = self._t[1, :n]
+        m = sparse.csr_matrix((np.arange(n), pt, np.array([0, n])), shape=(1, max(self._n, 1))).tocsc()
+        self._by_pt = m.data.astype(np.int64)
+        self._start = m.indptr.astype(np.int64)
 
     def _rows_of(self, ids: np.ndarray) -> np.ndarray:
-        """Observation-table rows of the points ``ids``, in table order. The first
-        ``INDEX_AFTER_SCANS`` queries after a change scan the table (``np.isin``); later ones use the
-        point index (built once, about as costly as 10 scans: a ski-rental rule, never much worse
-        than always scanning or always indexing; benchmarks/covisibility_speed.py)."""
+        """Live table rows of the points ``ids`` (unordered): their slices of the point index, then
+        their chains of newer rows. O(their rows), never a scan of the table."""
         ids = np.asarray(ids, np.int64).reshape(-1)
-        if self._pt_index is None and self._scans < self.INDEX_AFTER_SCANS:
-            self._scans += 1
-            return np.flatnonzero(np.isin(self._table()[1], ids))
-        by_pt, start = self._point_index()
-        ids = ids[(ids >= 0) & (ids < len(start) - 1)]
+        ids = np.unique(ids[(ids >= 0) & (ids < self._n)])
         if len(ids) == 0:
             return np.zeros(0, np.int64)
-        ids = np.unique(ids)
-        lo, hi = start[ids], start[ids + 1]
-        n = hi - lo
-        total = int(n.sum())
-        if total == 0:
+        parts = []
+        base = ids[ids < len(self._start) - 1]
+        if len(base):
+            lo, hi = self._start[base], self._start[base + 1]
+            n = hi - lo
+            total = int(n.sum())
+            if total:
+                parts.append(self._by_pt[np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(total)])
+        cur = self._head[ids]
+        cur = cur[cur >= 0]
+        while len(cur):  # one step per newer observation of the most observed point
+            parts.append(cur)
+            cur = self._next[cur]
+            cur = cur[cur >= 0]
+        if not parts:
             return np.zeros(0, np.int64)
-        offs = np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(total)
-        return np.sort(by_pt[offs])
+        rows = np.concatenate(parts)
+        return rows[self._live[rows]]
+
+    @staticmethod
+    def _order(kf: np.ndarray, kp: np.ndarray) -> np.ndarray:
+        """Order of rows by keyframe id then keypoint index. Rows are appended keyframe by keyframe,
+        keypoints ascending, so the keys come in long sorted runs: a stable (merge) sort is ~O(n)."""
+        return np.argsort(kf * (1 << 24) + kp, kind="stable")
+
+    def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """All live observations ``(kf_id, point_id, keypoint_index, octave)``, by keyframe then keypoint."""
+        self._sync()
+        rows = np.flatnonzero(self._live[: self._rows])
+        t = self._t[:, rows]
+        o = self._order(t[0], t[2])
+        return t[0, o], t[1, o], t[2, o], t[3, o]
 
     def observations_of(self, ids: np.ndarray, with_octave: bool = False) -> tuple[np.ndarray, ...]:
-        """Observation rows ``(kf_id, point_id, keypoint_index[, octave])`` of the points ``ids``."""
-        kf, pt, kp, octave = self._table()
-        sel = self._rows_of(ids)
+        """Observation rows ``(kf_id, point_id, keypoint_index[, octave])`` of the points ``ids``,
+        by keyframe id then keypoint index."""
+        self._sync()
+        rows = self._rows_of(ids)
+        kf, pt, kp, octave = self._t[:, rows]
+        sel = self._order(kf, kp)
         if with_octave:
             return kf[sel], pt[sel], kp[sel], octave[sel]
         return kf[sel], pt[sel], kp[sel]
@@ -264,9 +401,9 @@ class Map:
 
     def n_obs(self, ids: np.ndarray) -> np.ndarray:
         """Number of keyframes observing each point ``(K,)``."""
-        pt = self._table()[1]
-        counts = np.bincount(pt, minlength=self._n) if len(pt) else np.zeros(self._n, np.int64)
-        return counts[np.asarray(ids, np.int64)]
+        self._sync()
+        self._ensure_points()
+        return self._count[np.asarray(ids, np.int64)]
 
     def keyframes_observing(self, ids: np.ndarray) -> dict[int, int]:
         """``{keyframe id: number of the points ids it observes}``."""
@@ -276,6 +413,7 @@ class Map:
 
     def covisibility(self, kf_id: int) -> dict[int, int]:
         """``{other keyframe id: number of shared map points}`` for keyframe ``kf_id``."""
+        self._sync()
         cached = self._covis.get(kf_id)
         if cached is None:
             kf = self.keyframes[kf_id]

@@ -144,15 +144,23 @@ def _check_index(mp: Map, rng) -> None:
         assert all(octave[i] == mp.keyframes[int(kf[i])].octave[kp[i]] for i in range(len(kf)))
     for kid in mp.keyframe_ids():
         assert mp.covisibility(kid) == _brute_covisibility(mp, kid)
-    assert (mp._pt_index is not None) == (Map.INDEX_AFTER_SCANS < 1000)  # the path under test was taken
+    ids = np.arange(mp.n_points_total)
+    brute_n = np.zeros(mp.n_points_total, np.int64)
+    for kf in mp.keyframes.values():
+        np.add.at(brute_n, kf.map_point_ids[kf.map_point_ids >= 0], 1)
+    assert np.array_equal(mp.n_obs(ids), brute_n)
 
 
-@pytest.mark.parametrize("scans", [0, 3, 1000])
-def test_point_index_and_covisibility_cache_equal_brute_force(monkeypatch, scans):
-    """The CSR point index and the covisibility cache agree with a full np.isin scan after
-    point additions, direct edits + invalidate(), point removals and keyframe deletion (index
-    built at once, after a few scans, never)."""
-    monkeypatch.setattr(Map, "INDEX_AFTER_SCANS", scans)
+# compaction after every change, sometimes, never
+COMPACTION = [(0, 0.0), (50, 0.25), (10**9, 0.0)]
+
+
+@pytest.mark.parametrize("min_rows,fraction", COMPACTION)
+def test_point_index_and_covisibility_cache_equal_brute_force(monkeypatch, min_rows, fraction):
+    """The incremental observation table and the covisibility cache agree with a full np.isin scan
+    after point additions, direct edits + invalidate(), point removals and keyframe deletion."""
+    monkeypatch.setattr(Map, "COMPACT_MIN_ROWS", min_rows)
+    monkeypatch.setattr(Map, "COMPACT_FRACTION", fraction)
     rng = np.random.default_rng(12)
     mp = Map()
     kfs = []
@@ -181,3 +189,54 @@ def test_point_index_and_covisibility_cache_equal_brute_force(monkeypatch, scans
     mp.invalidate()
     mp.add_points(np.tile([0.0, 0.0, 2.0], (5, 1)), np.zeros((5, 32), np.uint8), kf, np.arange(40, 45))
     _check_index(mp, rng)
+
+
+@pytest.mark.parametrize("min_rows,fraction", COMPACTION)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_random_map_edits_keep_the_index_equal_brute_force(monkeypatch, min_rows, fraction, seed):
+    """A random sequence of map edits (new keyframes with new and re-observed points, observations
+    added and removed by direct edits with ``invalidate(kf_ids)`` or ``invalidate()``, points fused
+    as local mapping and loop fusion do, points removed, keyframes deleted): after each one the
+    point-observer, covisibility and observation-count queries equal a brute-force scan."""
+    monkeypatch.setattr(Map, "COMPACT_MIN_ROWS", min_rows)
+    monkeypatch.setattr(Map, "COMPACT_FRACTION", fraction)
+    rng = np.random.default_rng(seed)
+    mp = Map()
+    first = _kf(mp, 50)
+    mp.add_points(rng.normal(0, 1, (20, 3)) + [0, 0, 3], rng.integers(0, 256, (20, 32), dtype=np.uint8), first,
+                  np.arange(20))
+    for step in range(60):
+        op = rng.integers(6) if len(mp.keyframes) > 2 else 0
+        kfs = mp.keyframe_ids()
+        if op == 0:  # new keyframe: re-observes some points, creates some
+            kf = _kf(mp, 50, octave=int(rng.integers(3)))
+            pool = mp.point_ids()
+            take = rng.choice(len(pool), min(len(pool), 15), replace=False)
+            kf.map_point_ids[rng.choice(25, len(take), replace=False)] = pool[take]
+            mp.invalidate([kf.id])
+            free = np.flatnonzero(kf.map_point_ids < 0)[:10]
+            mp.add_points(rng.normal(0, 1, (len(free), 3)) + [0, 0, 3],
+                          rng.integers(0, 256, (len(free), 32), dtype=np.uint8), kf, free)
+        elif op == 1:  # observations added and removed in place
+            kf = mp.keyframes[int(rng.choice(kfs))]
+            kf.map_point_ids[rng.choice(50, 3, replace=False)] = -1
+            free = np.flatnonzero(kf.map_point_ids < 0)
+            new = np.setdiff1d(mp.point_ids(), kf.map_point_ids)
+            n = min(len(free), len(new), 3)
+            kf.map_point_ids[free[:n]] = rng.choice(new, n, replace=False)
+            mp.invalidate([kf.id] if rng.random() < 0.5 else None)
+        elif op == 2:  # fuse: every observation of point a becomes one of point b (a keyframe seeing both keeps b)
+            a, b = rng.choice(mp.point_ids(), 2, replace=False)
+            for kf in mp.keyframes.values():
+                has_a = kf.map_point_ids == a
+                if has_a.any():
+                    kf.map_point_ids[has_a] = -1 if (kf.map_point_ids == b).any() else b
+            mp.alive[a] = False
+            mp.invalidate()
+        elif op == 3:
+            mp.remove_points(rng.choice(mp.point_ids(), 3, replace=False))
+        elif op == 4:
+            mp.remove_keyframe(int(rng.choice(kfs[1:])))
+        else:  # a query between edits fills the covisibility cache
+            mp.covisibility(int(rng.choice(kfs)))
+        _check_index(mp, rng)

@@ -110,11 +110,13 @@ def freeze_for_verification(mp, query_id: int, candidate_ids: list[int], covisib
         members.update(k for k in view.best_covisibles(c, group_size) if k != query_id)
     view.keyframes = {k: KeyframeView(kf, kf.map_point_ids.copy() if k in members else None)
                       for k, kf in mp.keyframes.items()}
-    if members:
-        pids = np.unique(np.concatenate([view.keyframes[k].map_point_ids for k in members]))
-        pids = pids[pids >= 0]
-    else:
-        pids = np.zeros(0, np.int64)
+    # the sorted distinct point ids of the groups: a mark per point id (O(points) memset, no sort or
+    # hash of the ~100 k keypoints of the groups: np.unique of them was ~60 % of the loop stage)
+    seen = np.zeros(len(mp.alive), bool)
+    for k in members:  # loop over keyframes
+        ids = view.keyframes[k].map_point_ids
+        seen[ids[ids >= 0]] = True
+    pids = np.flatnonzero(seen)
     view.xyz = _Rows(pids, mp.xyz[pids].copy())
     view.descriptors = _Rows(pids, mp.descriptors[pids].copy())
     view.alive = _Rows(pids, mp.alive[pids].copy())
