@@ -236,7 +236,7 @@ class RunRecorder:
         }
 
 
-class _Prepared:
+class _PreparingSequence:
     """``sequence`` seen through ``system.prepare``: reading frame ``i`` also starts its ORB extraction
     and its detection in the system's worker threads, so that work is done for frames ``t+1 ..``
     while frame ``t`` is tracked (:meth:`~dynslam_lab.slam.system.System.prepare`)."""
@@ -316,7 +316,7 @@ def run_sequence(
         bar = tqdm(total=n, desc=f"dynslam {sequence.name}", unit="frame", disable=not progress)
         t_run = time.perf_counter()
         try:
-            with blas_single_thread(), bar, FramePrefetcher(_Prepared(sequence, system) if extract_ahead else sequence, n, prefetch) as frames:
+            with blas_single_thread(), bar, FramePrefetcher(_PreparingSequence(sequence, system) if extract_ahead else sequence, n, prefetch) as frames:
                 t_frame = time.perf_counter()
                 for item in frames:  # frames read ahead on the other core; a bad one arrives as its error
                     i, frame = item.index, item.frame

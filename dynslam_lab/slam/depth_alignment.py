@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..geometry.se3 import so3_log
 
 __all__ = ["DepthGrid", "vertex_normal_grid", "DenseTerm"]
 
@@ -147,11 +148,7 @@ class DenseTerm:
         R_p, t_p = self.T_prior[:3, :3], self.T_prior[:3, 3]
         dR = R @ R_p.T
         q = dR @ t_p
-        c = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
-        th = np.arccos(c)
-        w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
-        w = w * (0.5 if th < 1e-8 else th / (2.0 * np.sin(th)))
-        e = np.concatenate([w / s_r, (t - q) / s_t])
+        e = np.concatenate([so3_log(dR) / s_r, (t - q) / s_t])
         J = np.zeros((6, 6))
         J[:3, :3] = np.eye(3) / s_r
         J[3:, :3] = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]]) / s_t

@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
+from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
@@ -232,6 +233,7 @@ class Tracker:
         self.camera = camera
         self.map = mp
         self.cfg = cfg
+        self._depth_noise = DepthNoise(sigma_0=cfg.depth_sigma_0, sigma_2=cfg.depth_sigma_2, z_ref=cfg.depth_sigma_zref)
         self.scale_factor = float(scale_factor)
         self.state = TrackState.NOT_INITIALIZED
         self.last: SlamFrame | None = None
@@ -261,9 +263,9 @@ class Tracker:
     # -------------------------------------------------------------- helpers
     def depth_sigma(self, z: np.ndarray) -> np.ndarray:
         """Standard deviation (m) of keypoint depths ``z`` in the metric depth row: ``depth_sigma_scale``
-        x Nguyen et al. 2012's Kinect v1 axial noise ``s0 + s2 (z - zref)^2``."""
-        c = self.cfg
-        return c.depth_sigma_scale * (c.depth_sigma_0 + c.depth_sigma_2 * (np.asarray(z, float) - c.depth_sigma_zref) ** 2)
+        x Nguyen et al. 2012's Kinect v1 axial noise ``s0 + s2 (z - zref)^2`` (the renderer's sensor model,
+        :func:`~dynslam_lab.datasets.kinect.nguyen_sigma`, at normal incidence, with this config's terms)."""
+        return self.cfg.depth_sigma_scale * nguyen_sigma(z, 0.0, self._depth_noise)
 
     def _obs(self, frame: SlamFrame, idx: np.ndarray) -> Observations:
         z = frame.depth[idx]
