@@ -147,6 +147,8 @@ def test_verification_on_a_frozen_view_equals_the_live_map_and_ignores_later_cha
     np.testing.assert_array_equal(frozen.ip, live.ip)
     # the frame loop goes on: poses move, points move, observations of the loop group are dropped
     shift = make_pose(so3_exp([0.0, 0.3, 0.0]), [1.0, 0.0, 0.0])
+    frozen_ids = sorted(view.keyframes)
+    centres = {k: mp.keyframes[k].center for k in frozen_ids}
     for k in list(mp.keyframes):
         mp.keyframes[k].T_w_c = shift @ mp.keyframes[k].T_w_c
         mp.keyframes[k].map_point_ids[::2] = -1
@@ -155,6 +157,11 @@ def test_verification_on_a_frozen_view_equals_the_live_map_and_ignores_later_cha
     again = verify_candidate(view.keyframes[q], view, c, cfg, closer.camera, closer.bf, np.random.default_rng(3))
     np.testing.assert_array_equal(again.T_q_c, live.T_q_c)
     np.testing.assert_array_equal(again.correction, live.correction)
+    # every keyframe's pose as frozen (views made on first read, after the change), none added or lost
+    mp.remove_keyframe(frozen_ids[len(frozen_ids) // 2])  # culled in the live map after freezing
+    assert sorted(view.keyframes) == frozen_ids
+    for k in frozen_ids:
+        np.testing.assert_array_equal(view.keyframes[k].center, centres[k])
     # a point outside the frozen loop groups is never read silently
     with pytest.raises(KeyError):
         view.xyz[np.array([mp.n_points_total + 10])]

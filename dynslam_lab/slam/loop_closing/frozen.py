@@ -21,6 +21,8 @@ A :class:`MapView` answers the same calls as :class:`~dynslam_lab.slam.map.Map` 
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+
 import numpy as np
 
 from ...geometry.se3 import se3_inv
@@ -34,9 +36,10 @@ class KeyframeView:
 
     __slots__ = ("_kf", "_T_w_c", "map_point_ids")
 
-    def __init__(self, kf, map_point_ids: np.ndarray | None = None) -> None:
+    def __init__(self, kf, map_point_ids: np.ndarray | None = None, T_w_c: np.ndarray | None = None) -> None:
         self._kf = kf
-        self._T_w_c = kf._T_w_c  # replaced, never written in place, by set_pose
+        # replaced, never written in place, by set_pose: holding the array freezes it
+        self._T_w_c = kf._T_w_c if T_w_c is None else T_w_c
         self.map_point_ids = map_point_ids
 
     def __getattr__(self, name: str):
@@ -53,6 +56,36 @@ class KeyframeView:
     @property
     def center(self) -> np.ndarray:
         return self._T_w_c[:3, 3].copy()
+
+
+class _FrozenKeyframes(Mapping):
+    """``id -> KeyframeView`` of every keyframe at freeze time, the views made when first read.
+
+    Freezing holds only the keyframe objects and their pose arrays (two dictionary copies, no
+    object per keyframe), so its cost in the frame loop stays a few microseconds per hundred
+    keyframes; the worker makes the views it reads (verification reads a few dozen)."""
+
+    __slots__ = ("_kf", "_pose", "_views")
+
+    def __init__(self, keyframes: dict, views: dict[int, KeyframeView]) -> None:
+        self._kf = dict(keyframes)
+        self._pose = {k: kf._T_w_c for k, kf in self._kf.items()}
+        self._views = dict(views)
+
+    def __getitem__(self, kf_id: int) -> KeyframeView:
+        view = self._views.get(kf_id)
+        if view is None:
+            view = self._views[kf_id] = KeyframeView(self._kf[kf_id], None, self._pose[kf_id])
+        return view
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._kf)
+
+    def __len__(self) -> int:
+        return len(self._kf)
+
+    def __contains__(self, kf_id: object) -> bool:
+        return kf_id in self._kf
 
 
 class _Rows:
@@ -108,13 +141,13 @@ def freeze_for_verification(mp, query_id: int, candidate_ids: list[int], covisib
     for c in candidate_ids:  # the loop group of verification.loop_group_points
         members.add(c)
         members.update(k for k in view.best_covisibles(c, group_size) if k != query_id)
-    view.keyframes = {k: KeyframeView(kf, kf.map_point_ids.copy() if k in members else None)
-                      for k, kf in mp.keyframes.items()}
+    groups = {k: KeyframeView(mp.keyframes[k], mp.keyframes[k].map_point_ids.copy()) for k in members}
+    view.keyframes = _FrozenKeyframes(mp.keyframes, groups)
     # the sorted distinct point ids of the groups: a mark per point id (O(points) memset, no sort or
     # hash of the ~100 k keypoints of the groups: np.unique of them was ~60 % of the loop stage)
     seen = np.zeros(len(mp.alive), bool)
-    for k in members:  # loop over keyframes
-        ids = view.keyframes[k].map_point_ids
+    for kv in groups.values():  # loop over keyframes
+        ids = kv.map_point_ids
         seen[ids[ids >= 0]] = True
     pids = np.flatnonzero(seen)
     view.xyz = _Rows(pids, mp.xyz[pids].copy())
