@@ -277,13 +277,15 @@ def _window_span(depth: np.ndarray, uv: np.ndarray, radius: int) -> np.ndarray:
     """``(M,)`` max - min depth over the ``(2 r + 1)^2`` window around each pixel ``uv (M, 2)``; inf where a
     pixel of the window has no depth or lies off the image (one gather of ``M (2 r + 1)^2`` values)."""
     h, w = depth.shape
+    r0 = np.rint(uv[:, 1]).astype(np.int64)
+    c0 = np.rint(uv[:, 0]).astype(np.int64)
+    inside = (r0 >= radius) & (r0 < h - radius) & (c0 >= radius) & (c0 < w - radius)
     d = np.arange(-radius, radius + 1)
-    rows = np.rint(uv[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None]
-    cols = np.rint(uv[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :]
-    inside = ((rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)).all(axis=(1, 2))
-    z = depth[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].reshape(len(uv), -1)
+    offsets = (d[:, None] * w + d[None, :]).reshape(-1)  # the window as flat offsets
+    centre = np.where(inside, r0 * w + c0, radius * w + radius)
+    z = np.asarray(depth).reshape(-1).take(centre[:, None] + offsets[None, :])
     span = z.max(axis=1) - z.min(axis=1)
-    return np.where(inside & (z > 0).all(axis=1), span, np.inf)
+    return np.where(inside & (z.min(axis=1) > 0), span, np.inf)
 
 
 def _past_small_depth(past: PastFrame, factor: int) -> np.ndarray:
@@ -422,7 +424,7 @@ def multiframe_stage(w: FrameWork) -> None:
     grid_refs = [(f.T_w_c, _cached(f, "small_min", lambda f=f: eroded_depth(_past_small_depth(f, cfg.factor), 1)))
                  for f in refs]
     P_w = transform_points(T_w_c, P)
-    g = free_space_test(P_w, grid_refs, cam, cfg)
+    g = free_space_test(P_w, grid_refs, cam, cfg, margin=False)
     h, wd = small.shape
     viol = np.zeros(h * wd, np.int64)
     viol[keep] = g.violations
@@ -431,12 +433,12 @@ def multiframe_stage(w: FrameWork) -> None:
     far_refs = [(f.T_w_c, f.depth_min) for f in w.memory.far if f.depth_min.shape == small.shape]
     if far_refs:
         t0 = time.perf_counter()
-        fk = free_space_test(X_w, far_refs, cam, cfg)
+        fk = free_space_test(X_w, far_refs, cam, cfg, margin=False)
         far_viol = np.zeros(n)
         far_viol[ok] = fk.violations
         col |= far_viol > 0
         w.values["far_violations"] = far_viol
-        viol[keep] += free_space_test(P_w, far_refs, cam, cfg).violations
+        viol[keep] += free_space_test(P_w, far_refs, cam, cfg, margin=False).violations
         w.timings["far_frames"] = _ms(t0)
     agree = np.zeros(h * wd, np.int64)
     agree[keep] = g.agreements
