@@ -27,6 +27,10 @@ None when the matched pixels barely move and the stage flags nothing.
 
 from __future__ import annotations
 
+import os
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -40,6 +44,7 @@ __all__ = [
     "EpipolarConfig",
     "EpipolarResult",
     "track_lk",
+    "track_lk_async",
     "estimate_fundamental",
     "epipolar_check",
     "pair_inputs",
@@ -147,6 +152,33 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     ok &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
     q[~ok] = np.nan
     return q, ok
+
+
+_LK_POOL: tuple[int, ThreadPoolExecutor] | None = None
+_LK_POOL_LOCK = threading.Lock()
+
+
+def _lk_pool() -> ThreadPoolExecutor:
+    """The process's LK worker thread (one; made again in a forked child, where the parent's thread does not exist)."""
+    global _LK_POOL
+    with _LK_POOL_LOCK:
+        if _LK_POOL is None or _LK_POOL[0] != os.getpid():
+            _LK_POOL = (os.getpid(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-lk"))
+        return _LK_POOL[1]
+
+
+def track_lk_async(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()) -> Future:
+    """:func:`track_lk` started in a worker thread; the future gives ``((uv_prev, ok), ms)`` (``ms``: the pass's
+    own duration). OpenCV releases the interpreter lock during LK, so the caller's Python and numpy work runs
+    beside it on a second core (the screener's reference pose while LK matches the previous frame)."""
+    uv = check_uv(uv).copy()  # the worker must not see the caller change it
+
+    def run():
+        t0 = time.perf_counter()
+        out = track_lk(prev_gray, gray, uv, config)
+        return out, (time.perf_counter() - t0) * 1e3
+
+    return _lk_pool().submit(run)
 
 
 def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tuple[np.ndarray, ...]:
