@@ -36,7 +36,7 @@ import numpy as np
 from ..geometry.se3 import se3_inv, transform_points
 from .config import ScreeningConfig
 from .depth_ransac import screen_boxes
-from .epipolar import epipolar_check, fundamental_from_pose, track_lk
+from .epipolar import epipolar_check, fundamental_from_pose, track_lk, track_lk_async
 from .flow import flow_regions
 from .geometric_rule import level_rule_verdict
 from .history import FarFrames, FrameHistory, PastFrame, reduce_depth
@@ -133,6 +133,7 @@ class FrameWork:
         self.static_cells: np.ndarray | None = None  # (h, w) bool confirmed static by the multi-frame test
         self.vanished_cells: np.ndarray | None = None  # (h, w) bool: an earlier frame's point there is seen through
         self._cache: dict[str, object] = {}
+        self._pairs_future = None  # the LK pass with the previous frame, when started ahead (start_pairs)
         prev = memory.history.last
         self.prev: PastFrame | None = prev if prev is not None and prev.gray.shape == self.shape else None
 
@@ -144,12 +145,24 @@ class FrameWork:
             self.timings[key] = self.timings.get(key, 0.0) + _ms(t0)
         return self._cache[key]
 
+    def start_pairs(self) -> None:
+        """Start the LK pass with the previous frame in a worker thread (:func:`~.epipolar.track_lk_async`):
+        the stages before the first that needs the pairs (the reference pose) run beside it. Same pairs."""
+        if self.prev is not None and self._pairs_future is None and "lk" not in self._cache:
+            self._pairs_future = track_lk_async(self.prev.gray, self.gray, self.uv, self.config.lk)
+
     def pairs(self) -> tuple[np.ndarray, np.ndarray] | None:
         """LK pairs with the previous frame ``(uv_prev (N, 2), matched (N,))``, or None without one:
         one forward-backward LK pass per frame, shared by every stage that needs pairs (OpenCV's
-        Python binding takes no prebuilt pyramid, so the pass itself is what is shared)."""
+        Python binding takes no prebuilt pyramid, so the pass itself is what is shared). Timings: ``lk``
+        the pass, ``lk_wait`` how long the stages waited for it when it was started ahead."""
         if self.prev is None:
             return None
+        if self._pairs_future is not None:
+            t0 = time.perf_counter()
+            self._cache["lk"], self.timings["lk"] = self._pairs_future.result()
+            self.timings["lk_wait"] = _ms(t0)
+            self._pairs_future = None
         return self._timed("lk", lambda: track_lk(self.prev.gray, self.gray, self.uv, self.config.lk))
 
     @property
@@ -356,11 +369,10 @@ def depth_ransac_stage(w: FrameWork) -> None:
 def epipolar_stage(w: FrameWork) -> None:
     """Distance to the epipolar line in the previous frame (eq. 17). F from the reference pose when
     there is one, else by RANSAC from the pairs outside the prior (Ge et al. 2024)."""
-    pairs = w.pairs()
-    if pairs is None:
+    if w.prev is None:
         return
-    uv_prev, matched = pairs
-    T_c_p = w.motion_from_previous()
+    T_c_p = w.motion_from_previous()  # first: the LK pass, when started ahead, runs meanwhile
+    uv_prev, matched = w.pairs()
     F = None
     if T_c_p is not None:
         # the epipolar constraint needs parallax: a baseline of |t| shifts a point at the median depth by
