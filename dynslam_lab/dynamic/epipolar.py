@@ -45,6 +45,7 @@ __all__ = [
     "EpipolarResult",
     "track_lk",
     "track_lk_async",
+    "run_beside",
     "estimate_fundamental",
     "epipolar_check",
     "pair_inputs",
@@ -154,31 +155,31 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     return q, ok
 
 
-_LK_POOL: tuple[int, ThreadPoolExecutor] | None = None
-_LK_POOL_LOCK = threading.Lock()
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
+_POOL_LOCK = threading.Lock()
 
 
-def _lk_pool() -> ThreadPoolExecutor:
-    """The process's LK worker thread (one; made again in a forked child, where the parent's thread does not exist)."""
-    global _LK_POOL
-    with _LK_POOL_LOCK:
-        if _LK_POOL is None or _LK_POOL[0] != os.getpid():
-            _LK_POOL = (os.getpid(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-lk"))
-        return _LK_POOL[1]
+def run_beside(fn, *args) -> Future:
+    """``fn(*args)`` in the screener's worker thread (one per process, made again in a forked child, where the
+    parent's thread does not exist); jobs run one after the other, in the order given. For OpenCV calls, which
+    release the interpreter lock: the caller's Python and numpy work runs beside them on a second core."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL[0] != os.getpid():
+            _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-screen"))
+        return _POOL[1].submit(fn, *args)
+
+
+def _timed_ms(fn, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, (time.perf_counter() - t0) * 1e3
 
 
 def track_lk_async(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()) -> Future:
-    """:func:`track_lk` started in a worker thread; the future gives ``((uv_prev, ok), ms)`` (``ms``: the pass's
-    own duration). OpenCV releases the interpreter lock during LK, so the caller's Python and numpy work runs
-    beside it on a second core (the screener's reference pose while LK matches the previous frame)."""
-    uv = check_uv(uv).copy()  # the worker must not see the caller change it
-
-    def run():
-        t0 = time.perf_counter()
-        out = track_lk(prev_gray, gray, uv, config)
-        return out, (time.perf_counter() - t0) * 1e3
-
-    return _lk_pool().submit(run)
+    """:func:`track_lk` started in the worker thread (:func:`run_beside`); the future gives ``((uv_prev, ok), ms)``
+    (``ms``: the pass's own duration): the screener's reference pose is computed while LK matches the previous frame."""
+    return run_beside(_timed_ms, track_lk, prev_gray, gray, check_uv(uv).copy(), config)  # a copy: the caller may change uv
 
 
 def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tuple[np.ndarray, ...]:
