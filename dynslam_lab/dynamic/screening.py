@@ -191,6 +191,8 @@ class Screener:
                 t = time.perf_counter()
                 fn(w)
                 w.timings[name] = w.timings.get(name, 0.0) + _ms(t)
+            if name == "semantic" and "flow" in self.stages and w.sem.dynamic_detections.any():
+                w.start_flow()  # dense flow beside the geometric stages (the flow stage needs a-priori dynamic detections)
         on = set(self.stages)
         combine(w, on)
         if "restoration" in on:

@@ -37,7 +37,7 @@ from ..geometry.se3 import se3_inv, transform_points
 from .config import ScreeningConfig
 from .depth_ransac import screen_boxes
 from .epipolar import epipolar_check, fundamental_from_pose, track_lk, track_lk_async
-from .flow import flow_regions
+from .flow import farneback_flow_async, flow_regions
 from .geometric_rule import level_rule_verdict
 from .history import FarFrames, FrameHistory, PastFrame, reduce_depth
 from .motion_probability import restore_by_motion_probability
@@ -134,6 +134,7 @@ class FrameWork:
         self.vanished_cells: np.ndarray | None = None  # (h, w) bool: an earlier frame's point there is seen through
         self._cache: dict[str, object] = {}
         self._pairs_future = None  # the LK pass with the previous frame, when started ahead (start_pairs)
+        self._flow_future = None  # the dense flow with the previous frame, when started ahead (start_flow)
         prev = memory.history.last
         self.prev: PastFrame | None = prev if prev is not None and prev.gray.shape == self.shape else None
 
@@ -150,6 +151,11 @@ class FrameWork:
         the stages before the first that needs the pairs (the reference pose) run beside it. Same pairs."""
         if self.prev is not None and self._pairs_future is None and "lk" not in self._cache:
             self._pairs_future = track_lk_async(self.prev.gray, self.gray, self.uv, self.config.lk)
+
+    def start_flow(self) -> None:
+        """Start the dense flow with the previous frame in the worker thread (after the LK pass), for the flow stage."""
+        if self.prev is not None and self._flow_future is None:
+            self._flow_future = farneback_flow_async(self.gray, self.prev.gray, self.config.flow)
 
     def pairs(self) -> tuple[np.ndarray, np.ndarray] | None:
         """LK pairs with the previous frame ``(uv_prev (N, 2), matched (N,))``, or None without one:
@@ -528,7 +534,12 @@ def flow_stage(w: FrameWork) -> None:
             T_c_p = w._cache.get("T_c_p")
             if T_c_p is None:
                 T_c_p = w.motion_from_previous()
-            fr = flow_regions(w.gray, w.prev.gray, person, w.frame.depth, w.camera, T_c_p, w.config.flow)
+            dense = None
+            if w._flow_future is not None:  # started ahead by the screener
+                t0 = time.perf_counter()
+                dense = w._flow_future.result()
+                w.timings["flow_wait"] = _ms(t0)
+            fr = flow_regions(w.gray, w.prev.gray, person, w.frame.depth, w.camera, T_c_p, w.config.flow, flow=dense)
             flag = values_at(fr.region, w.uv, outside=False).astype(bool)
             w.region_parts.append(fr.region)
             w.values["flow_threshold_px"] = np.full(w.n, fr.threshold_px)
