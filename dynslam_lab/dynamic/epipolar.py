@@ -27,6 +27,10 @@ None when the matched pixels barely move and the stage flags nothing.
 
 from __future__ import annotations
 
+import os
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -40,6 +44,8 @@ __all__ = [
     "EpipolarConfig",
     "EpipolarResult",
     "track_lk",
+    "track_lk_async",
+    "run_beside",
     "estimate_fundamental",
     "epipolar_check",
     "pair_inputs",
@@ -147,6 +153,33 @@ def track_lk(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: Lk
     ok &= (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
     q[~ok] = np.nan
     return q, ok
+
+
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def run_beside(fn, *args) -> Future:
+    """``fn(*args)`` in the screener's worker thread (one per process, made again in a forked child, where the
+    parent's thread does not exist); jobs run one after the other, in the order given. For OpenCV calls, which
+    release the interpreter lock: the caller's Python and numpy work runs beside them on a second core."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL[0] != os.getpid():
+            _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynslam-screen"))
+        return _POOL[1].submit(fn, *args)
+
+
+def _timed_ms(fn, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, (time.perf_counter() - t0) * 1e3
+
+
+def track_lk_async(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()) -> Future:
+    """:func:`track_lk` started in the worker thread (:func:`run_beside`); the future gives ``((uv_prev, ok), ms)``
+    (``ms``: the pass's own duration): the screener's reference pose is computed while LK matches the previous frame."""
+    return run_beside(_timed_ms, track_lk, prev_gray, gray, check_uv(uv).copy(), config)  # a copy: the caller may change uv
 
 
 def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tuple[np.ndarray, ...]:

@@ -34,8 +34,10 @@ import cv2
 import numpy as np
 
 from ..geometry.se3 import se3_inv
+from .epipolar import run_beside
 
-__all__ = ["FlowConfig", "FlowResult", "farneback_flow", "ego_motion_flow", "human_driven_regions", "flow_regions"]
+__all__ = ["FlowConfig", "FlowResult", "farneback_flow", "farneback_flow_async", "ego_motion_flow", "human_driven_regions",
+           "flow_regions"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,12 @@ def farneback_flow(gray: np.ndarray, prev_gray: np.ndarray, config: FlowConfig =
     flow[..., 0] *= w / sw
     flow[..., 1] *= h / sh
     return flow
+
+
+def farneback_flow_async(gray: np.ndarray, prev_gray: np.ndarray, config: FlowConfig = FlowConfig()):
+    """:func:`farneback_flow` started in the screener's worker thread (:func:`~.epipolar.run_beside`): the flow
+    needs the two images only, so it runs while the geometric stages judge the frame. A future of the flow."""
+    return run_beside(farneback_flow, gray, prev_gray, config)
 
 
 def ego_motion_flow(depth: np.ndarray, camera, T_p_c: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -187,6 +195,7 @@ def flow_regions(
     camera=None,
     T_c_p: np.ndarray | None = None,
     config: FlowConfig = FlowConfig(),
+    flow: np.ndarray | None = None,
 ) -> FlowResult:
     """The whole stage on one frame: flow, optional ego-motion removal, adaptive threshold.
 
@@ -196,11 +205,13 @@ def flow_regions(
     person_mask : ``(H, W)`` bool a-priori dynamic mask of the current frame.
     depth, camera, T_c_p : current depth (m), intrinsics and rough pose previous -> current, to
         remove camera motion (skipped when any is None or ``compensate_ego_motion`` is off).
+    flow : :func:`farneback_flow` of the two images when already computed (e.g. by :func:`farneback_flow_async`).
     """
     H, W = gray.shape
     if person_mask.shape != (H, W):
         raise ValueError(f"flow_regions: person_mask {person_mask.shape} differs from image {(H, W)}")
-    flow = farneback_flow(gray, prev_gray, config)
+    if flow is None:
+        flow = farneback_flow(gray, prev_gray, config)
     h, w = flow.shape[:2]
     if config.compensate_ego_motion and depth is not None and camera is not None and T_c_p is not None:
         ego = ego_motion_flow(depth, camera, se3_inv(T_c_p), (h, w))

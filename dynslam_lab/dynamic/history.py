@@ -32,13 +32,15 @@ def reduce_depth(depth: np.ndarray, factor: int, max_spread: float = 0.05, min_v
     d = np.asarray(depth, np.float32)
     h, w = d.shape
     hs, ws = h // factor, w // factor
-    d = d[: hs * factor, : ws * factor]
-    valid = (d > 0).astype(np.float32)
-    d = d * valid  # nan-free, 0 where no reading
+    d = np.ascontiguousarray(d[: hs * factor, : ws * factor])
     size = (ws, hs)
-    frac = cv2.resize(valid, size, interpolation=cv2.INTER_AREA)
+    # two full-size temporaries only (each costs its page faults): 1 where read, then d^2 in the same buffer
+    buf = cv2.threshold(d, 0.0, 1.0, cv2.THRESH_BINARY)[1]
+    frac = cv2.resize(buf, size, interpolation=cv2.INTER_AREA)
+    d = cv2.threshold(d, 0.0, 0.0, cv2.THRESH_TOZERO)[1]  # 0 where no reading (nan too)
     s1 = cv2.resize(d, size, interpolation=cv2.INTER_AREA)
-    s2 = cv2.resize(d * d, size, interpolation=cv2.INTER_AREA)
+    np.multiply(d, d, out=buf)
+    s2 = cv2.resize(buf, size, interpolation=cv2.INTER_AREA)
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = s1 / frac
         var = s2 / frac - mean * mean

@@ -146,23 +146,50 @@ def grid_points(depth: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
 
 def _project(P_c: np.ndarray, camera, shape: tuple[int, int], border: float):
     """Nearest pixels of camera points ``(..., 3)``: ``(z, flat index, inside)`` (index 0 outside)."""
+    P = np.asarray(P_c, np.float32)
+    return _pixels(P[..., 0], P[..., 1], P[..., 2], camera, shape, border)
+
+
+def _pixels(x: np.ndarray, y: np.ndarray, z: np.ndarray, camera, shape: tuple[int, int], border: float):
+    """:func:`_project` on the coordinates given apart (float32 arrays of one shape; ``x`` and ``y`` may
+    be overwritten): ``(z, flat index (intp), inside)``. One pass per operation, in place where it can."""
     h, w = shape
-    z = P_c[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / z
-        u = camera.fx * P_c[..., 0] * inv + camera.cx
-        v = camera.fy * P_c[..., 1] * inv + camera.cy
-    inside = (z > 0.05) & (u >= border) & (v >= border) & (u <= w - 1 - border) & (v <= h - 1 - border)
-    c = np.rint(np.where(inside, u, 0)).astype(np.int64)
-    r = np.rint(np.where(inside, v, 0)).astype(np.int64)
-    return z, r * w + c, inside
+        inv = np.divide(1.0, z, dtype=np.float32)
+        u = np.multiply(x, camera.fx, dtype=np.float32)
+        u *= inv
+        u += np.float32(camera.cx)
+        v = np.multiply(y, camera.fy, dtype=np.float32)
+        v *= inv
+        v += np.float32(camera.cy)
+        inside = z > 0.05
+        inside &= u >= border
+        inside &= v >= border
+        inside &= u <= w - 1 - border
+        inside &= v <= h - 1 - border
+        np.rint(u, out=u)
+        np.rint(v, out=v)
+    v *= w  # row * w + column: exact in float32 below 2^24 pixels
+    v += u
+    idx = np.where(inside, v, np.float32(0)).astype(np.intp)
+    return z, idx, inside
 
 
 def _tau(z: np.ndarray, config: MultiFrameConfig) -> np.ndarray:
     return np.maximum(config.depth_m, config.depth_quadratic * z * z)
 
 
-def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig) -> FreeSpace:
+def _into_frames(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points ``X (M, 3)`` moved by each of the poses ``T (J, 4, 4)``: their coordinates ``x, y, z``,
+    each ``(J, M)`` float32 and contiguous (one small matrix product per pose, no ``(J, M, 3)`` layout)."""
+    Xt = np.ascontiguousarray(np.asarray(X, np.float32).T)  # (3, M)
+    T = np.asarray(T, np.float32)
+    P = np.matmul(T[:, :3, :3], Xt)  # (J, 3, M)
+    P += T[:, :3, 3:]
+    return P[:, 0], P[:, 1], P[:, 2]
+
+
+def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig, margin: bool = True) -> FreeSpace:
     """The forward test of world points ``X_w (M, 3)`` against earlier frames (all frames at once).
 
     Parameters
@@ -171,27 +198,36 @@ def free_space_test(X_w: np.ndarray, refs, camera, config: MultiFrameConfig) -> 
     refs : sequence of ``(T_w_c (4, 4), eroded depth (h, w))`` of the earlier frames, with
         ``camera`` the intrinsics of that depth grid.
     camera : intrinsics of the earlier frames' depth images.
+    margin : compute ``margin_m`` (else it is all nan: the counts alone are cheaper).
     """
     X_w = np.asarray(X_w, np.float32).reshape(-1, 3)
     m = len(X_w)
     if not refs or m == 0:
         z = np.zeros(m, np.int64)
         return FreeSpace(z, z.copy(), z.copy(), z.copy(), np.full(m, np.nan))
-    T = np.stack([se3_inv(T_w_j) for T_w_j, _ in refs]).astype(np.float32)  # (J, 4, 4) T_j_w
+    T = np.stack([se3_inv(T_w_j) for T_w_j, _ in refs])  # (J, 4, 4) T_j_w
     h, w = refs[0][1].shape
-    P = np.matmul(X_w[None], T[:, :3, :3].transpose(0, 2, 1)) + T[:, None, :3, 3]  # (J, M, 3)
-    zp, idx, inside = _project(P, camera, (h, w), config.border_px)
-    zj = np.stack([np.asarray(d, np.float32).reshape(-1)[i] for (_, d), i in zip(refs, idx)])  # (J, M)
-    ok = inside & (zj > 0)
+    x, y, zp = _into_frames(X_w, T)
+    zp, idx, inside = _pixels(x, y, zp, camera, (h, w), config.border_px)
+    zj = np.empty_like(zp)
+    for j, (_, d) in enumerate(refs):
+        np.take(np.asarray(d, np.float32).reshape(-1), idx[j], out=zj[j])
+    inside &= zj > 0  # seen by frame j, with a reading there
     tau = _tau(zp, config)
-    d = np.where(ok, zj - zp, np.nan)
+    d = zj
+    d -= zp  # z_j - z_p (nan or garbage where not inside: masked below)
     with np.errstate(invalid="ignore"):
-        viol = (d > tau).sum(axis=0)
-        agree = (np.abs(d) <= tau).sum(axis=0)
-        occl = (d < -tau).sum(axis=0)
-        margin = np.where(ok, d - tau, -np.inf).max(axis=0).astype(np.float64)
-    margin[~np.isfinite(margin)] = np.nan
-    return FreeSpace(viol, agree, occl, viol + agree, margin)
+        viol = ((d > tau) & inside).sum(axis=0)
+        agree = ((np.abs(d) <= tau) & inside).sum(axis=0)
+        occl = ((d < -tau) & inside).sum(axis=0)
+        if margin:
+            d -= tau
+            d[~inside] = -np.inf
+            out = d.max(axis=0).astype(np.float64)
+            out[~np.isfinite(out)] = np.nan
+        else:
+            out = np.full(m, np.nan)
+    return FreeSpace(viol, agree, occl, viol + agree, out)
 
 
 def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, config: MultiFrameConfig) -> np.ndarray:
@@ -211,12 +247,13 @@ def vanished_test(refs, T_w_c: np.ndarray, current_min: np.ndarray, camera, conf
     T_c_w = se3_inv(T_w_c)
     flat_min = current_min.reshape(-1)
     for j, (T_w_j, P) in enumerate(refs):
-        T = (T_c_w @ T_w_j).astype(np.float32)
-        Q = P @ T[:3, :3].T + T[:3, 3]
-        zp, idx, inside = _project(Q, camera, (h, w), config.border_px)
-        zc = flat_min[idx]
+        x, y, z = _into_frames(P, (T_c_w @ T_w_j)[None])
+        zp, idx, inside = _pixels(x[0], y[0], z[0], camera, (h, w), config.border_px)
+        zc = flat_min.take(idx)
+        inside &= zc > 0
+        zc -= zp
         with np.errstate(invalid="ignore"):
-            hit = inside & (zc > 0) & (zc - zp > _tau(zp, config))
-        seen[j, idx[hit]] = True
+            inside &= zc > _tau(zp, config)
+        seen[j, idx[inside]] = True
     return seen.sum(axis=0).reshape(h, w)
 

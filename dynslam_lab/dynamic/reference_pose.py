@@ -156,27 +156,33 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
     uv = np.asarray(uv, np.float64)
     inv_sigma = np.ones(len(X_w)) if sigma is None else 1.0 / np.asarray(sigma, np.float64)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    damping = 1e-9 * np.eye(6)
+    Ju, Jv = np.zeros((len(X_w), 6)), np.zeros((len(X_w), 6))  # rows refilled each step (columns 4 / 3 stay 0)
     for s in scales_px:
         for _ in range(int(iterations)):
             X = X_w @ T[:3, :3].T + T[:3, 3]
             z = X[:, 2]
             ok = z > 1e-6
-            if ok.sum() < 6:
+            n_ok = int(np.count_nonzero(ok))
+            if n_ok < 6:
                 return T
-            x, y, z = X[ok, 0], X[ok, 1], z[ok]
+            if n_ok == len(ok):  # the usual case: no copies
+                x, y, isg, q = X[:, 0], X[:, 1], inv_sigma, uv
+            else:
+                x, y, z, isg, q = X[ok, 0], X[ok, 1], z[ok], inv_sigma[ok], uv[ok]
             iz = 1.0 / z
-            isg = inv_sigma[ok]
-            r = (uv[ok] - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
+            r = (q - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
             w = isg * isg / (1.0 + (np.einsum("ij,ij->i", r, r) / (s * s)))
             # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point, one (M, 6) block per row
             xz, yz = x * iz, y * iz
-            Ju = np.column_stack([-fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * iz, np.zeros_like(iz), -fx * xz * iz])
-            Jv = np.column_stack([-fy * (1 + yz * yz), fy * xz * yz, fy * xz, np.zeros_like(iz), fy * iz, -fy * yz * iz])
-            H = Ju.T @ (Ju * w[:, None]) + Jv.T @ (Jv * w[:, None])
+            ju, jv = Ju[:n_ok], Jv[:n_ok]
+            ju[:, 0], ju[:, 1], ju[:, 2], ju[:, 3], ju[:, 5] = -fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * iz, -fx * xz * iz
+            jv[:, 0], jv[:, 1], jv[:, 2], jv[:, 4], jv[:, 5] = -fy * (1 + yz * yz), fy * xz * yz, fy * xz, fy * iz, -fy * yz * iz
+            H = ju.T @ (ju * w[:, None]) + jv.T @ (jv * w[:, None])
             rw = r / isg[:, None] * w[:, None]  # residuals in px, weighted
-            g = Ju.T @ rw[:, 0] + Jv.T @ rw[:, 1]
+            g = ju.T @ rw[:, 0] + jv.T @ rw[:, 1]
             try:
-                delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
+                delta = np.linalg.solve(H + damping, g)
             except np.linalg.LinAlgError:
                 return T
             dT = np.eye(4)

@@ -183,12 +183,16 @@ class Screener:
             if correction is not None and np.linalg.norm(correction[:3, 3]) > self.config.multiframe.far_reset_m:
                 mem.far.clear()  # a loop closure moved the world: the far frames' poses are stale
         w = FrameWork(frame, uv, detections, context, self.config, mem)
+        if "epipolar" in self.stages or "multiview" in self.stages:
+            w.start_pairs()  # LK with the previous frame beside the stages before them
         for name in self.stages:
             fn = STAGE_FUNCTIONS.get(name)
             if fn is not None:
                 t = time.perf_counter()
                 fn(w)
                 w.timings[name] = w.timings.get(name, 0.0) + _ms(t)
+            if name == "semantic" and "flow" in self.stages and w.sem.dynamic_detections.any():
+                w.start_flow()  # dense flow beside the geometric stages (the flow stage needs a-priori dynamic detections)
         on = set(self.stages)
         combine(w, on)
         if "restoration" in on:

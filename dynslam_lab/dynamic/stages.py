@@ -36,8 +36,8 @@ import numpy as np
 from ..geometry.se3 import se3_inv, transform_points
 from .config import ScreeningConfig
 from .depth_ransac import screen_boxes
-from .epipolar import epipolar_check, fundamental_from_pose, track_lk
-from .flow import flow_regions
+from .epipolar import epipolar_check, fundamental_from_pose, track_lk, track_lk_async
+from .flow import farneback_flow_async, flow_regions
 from .geometric_rule import level_rule_verdict
 from .history import FarFrames, FrameHistory, PastFrame, reduce_depth
 from .motion_probability import restore_by_motion_probability
@@ -133,6 +133,8 @@ class FrameWork:
         self.static_cells: np.ndarray | None = None  # (h, w) bool confirmed static by the multi-frame test
         self.vanished_cells: np.ndarray | None = None  # (h, w) bool: an earlier frame's point there is seen through
         self._cache: dict[str, object] = {}
+        self._pairs_future = None  # the LK pass with the previous frame, when started ahead (start_pairs)
+        self._flow_future = None  # the dense flow with the previous frame, when started ahead (start_flow)
         prev = memory.history.last
         self.prev: PastFrame | None = prev if prev is not None and prev.gray.shape == self.shape else None
 
@@ -144,12 +146,29 @@ class FrameWork:
             self.timings[key] = self.timings.get(key, 0.0) + _ms(t0)
         return self._cache[key]
 
+    def start_pairs(self) -> None:
+        """Start the LK pass with the previous frame in a worker thread (:func:`~.epipolar.track_lk_async`):
+        the stages before the first that needs the pairs (the reference pose) run beside it. Same pairs."""
+        if self.prev is not None and self._pairs_future is None and "lk" not in self._cache:
+            self._pairs_future = track_lk_async(self.prev.gray, self.gray, self.uv, self.config.lk)
+
+    def start_flow(self) -> None:
+        """Start the dense flow with the previous frame in the worker thread (after the LK pass), for the flow stage."""
+        if self.prev is not None and self._flow_future is None:
+            self._flow_future = farneback_flow_async(self.gray, self.prev.gray, self.config.flow)
+
     def pairs(self) -> tuple[np.ndarray, np.ndarray] | None:
         """LK pairs with the previous frame ``(uv_prev (N, 2), matched (N,))``, or None without one:
         one forward-backward LK pass per frame, shared by every stage that needs pairs (OpenCV's
-        Python binding takes no prebuilt pyramid, so the pass itself is what is shared)."""
+        Python binding takes no prebuilt pyramid, so the pass itself is what is shared). Timings: ``lk``
+        the pass, ``lk_wait`` how long the stages waited for it when it was started ahead."""
         if self.prev is None:
             return None
+        if self._pairs_future is not None:
+            t0 = time.perf_counter()
+            self._cache["lk"], self.timings["lk"] = self._pairs_future.result()
+            self.timings["lk_wait"] = _ms(t0)
+            self._pairs_future = None
         return self._timed("lk", lambda: track_lk(self.prev.gray, self.gray, self.uv, self.config.lk))
 
     @property
@@ -277,13 +296,15 @@ def _window_span(depth: np.ndarray, uv: np.ndarray, radius: int) -> np.ndarray:
     """``(M,)`` max - min depth over the ``(2 r + 1)^2`` window around each pixel ``uv (M, 2)``; inf where a
     pixel of the window has no depth or lies off the image (one gather of ``M (2 r + 1)^2`` values)."""
     h, w = depth.shape
+    r0 = np.rint(uv[:, 1]).astype(np.int64)
+    c0 = np.rint(uv[:, 0]).astype(np.int64)
+    inside = (r0 >= radius) & (r0 < h - radius) & (c0 >= radius) & (c0 < w - radius)
     d = np.arange(-radius, radius + 1)
-    rows = np.rint(uv[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None]
-    cols = np.rint(uv[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :]
-    inside = ((rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)).all(axis=(1, 2))
-    z = depth[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].reshape(len(uv), -1)
+    offsets = (d[:, None] * w + d[None, :]).reshape(-1)  # the window as flat offsets
+    centre = np.where(inside, r0 * w + c0, radius * w + radius)
+    z = np.asarray(depth).reshape(-1).take(centre[:, None] + offsets[None, :])
     span = z.max(axis=1) - z.min(axis=1)
-    return np.where(inside & (z > 0).all(axis=1), span, np.inf)
+    return np.where(inside & (z.min(axis=1) > 0), span, np.inf)
 
 
 def _past_small_depth(past: PastFrame, factor: int) -> np.ndarray:
@@ -354,11 +375,10 @@ def depth_ransac_stage(w: FrameWork) -> None:
 def epipolar_stage(w: FrameWork) -> None:
     """Distance to the epipolar line in the previous frame (eq. 17). F from the reference pose when
     there is one, else by RANSAC from the pairs outside the prior (Ge et al. 2024)."""
-    pairs = w.pairs()
-    if pairs is None:
+    if w.prev is None:
         return
-    uv_prev, matched = pairs
-    T_c_p = w.motion_from_previous()
+    T_c_p = w.motion_from_previous()  # first: the LK pass, when started ahead, runs meanwhile
+    uv_prev, matched = w.pairs()
     F = None
     if T_c_p is not None:
         # the epipolar constraint needs parallax: a baseline of |t| shifts a point at the median depth by
@@ -422,7 +442,7 @@ def multiframe_stage(w: FrameWork) -> None:
     grid_refs = [(f.T_w_c, _cached(f, "small_min", lambda f=f: eroded_depth(_past_small_depth(f, cfg.factor), 1)))
                  for f in refs]
     P_w = transform_points(T_w_c, P)
-    g = free_space_test(P_w, grid_refs, cam, cfg)
+    g = free_space_test(P_w, grid_refs, cam, cfg, margin=False)
     h, wd = small.shape
     viol = np.zeros(h * wd, np.int64)
     viol[keep] = g.violations
@@ -431,12 +451,12 @@ def multiframe_stage(w: FrameWork) -> None:
     far_refs = [(f.T_w_c, f.depth_min) for f in w.memory.far if f.depth_min.shape == small.shape]
     if far_refs:
         t0 = time.perf_counter()
-        fk = free_space_test(X_w, far_refs, cam, cfg)
+        fk = free_space_test(X_w, far_refs, cam, cfg, margin=False)
         far_viol = np.zeros(n)
         far_viol[ok] = fk.violations
         col |= far_viol > 0
         w.values["far_violations"] = far_viol
-        viol[keep] += free_space_test(P_w, far_refs, cam, cfg).violations
+        viol[keep] += free_space_test(P_w, far_refs, cam, cfg, margin=False).violations
         w.timings["far_frames"] = _ms(t0)
     agree = np.zeros(h * wd, np.int64)
     agree[keep] = g.agreements
@@ -514,7 +534,12 @@ def flow_stage(w: FrameWork) -> None:
             T_c_p = w._cache.get("T_c_p")
             if T_c_p is None:
                 T_c_p = w.motion_from_previous()
-            fr = flow_regions(w.gray, w.prev.gray, person, w.frame.depth, w.camera, T_c_p, w.config.flow)
+            dense = None
+            if w._flow_future is not None:  # started ahead by the screener
+                t0 = time.perf_counter()
+                dense = w._flow_future.result()
+                w.timings["flow_wait"] = _ms(t0)
+            fr = flow_regions(w.gray, w.prev.gray, person, w.frame.depth, w.camera, T_c_p, w.config.flow, flow=dense)
             flag = values_at(fr.region, w.uv, outside=False).astype(bool)
             w.region_parts.append(fr.region)
             w.values["flow_threshold_px"] = np.full(w.n, fr.threshold_px)

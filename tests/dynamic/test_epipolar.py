@@ -12,6 +12,7 @@ from dynslam_lab.dynamic.epipolar import (
     epipolar_check,
     estimate_fundamental,
     track_lk,
+    track_lk_async,
 )
 from dynslam_lab.geometry.se3 import make_pose, so3_exp, transform_points
 from dynslam_lab.geometry.epipolar import epipolar_distance
@@ -88,6 +89,16 @@ def test_lk_tracks_the_wall_to_its_true_shift():
     assert np.median(shift[:, 0]) == pytest.approx(CAM.fx * 0.02 / 3.0, abs=0.05)
     assert np.median(np.abs(shift[:, 1])) < 0.05
     assert ok.mean() > 0.9
+
+
+def test_lk_started_in_the_worker_thread_gives_the_same_pairs():
+    (f0, _, _), (f1, _, _) = two_layer_frames(2)
+    uv = np.column_stack([np.linspace(40, 600, 300), np.linspace(40, 440, 300)])
+    future = track_lk_async(f0.gray, f1.gray, uv, LkConfig())
+    uv[:] = 0  # the caller may reuse its array: the worker tracks a copy
+    (uv_prev, ok), ms = future.result()
+    expected, expected_ok = track_lk(f0.gray, f1.gray, np.column_stack([np.linspace(40, 600, 300), np.linspace(40, 440, 300)]))
+    assert np.array_equal(uv_prev, expected, equal_nan=True) and np.array_equal(ok, expected_ok) and ms > 0
 
 
 def test_bad_shapes_are_named():

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynslam_lab.dynamic.flow import FlowConfig, ego_motion_flow, farneback_flow, flow_regions, human_driven_regions
+from dynslam_lab.dynamic.flow import (
+    FlowConfig,
+    ego_motion_flow,
+    farneback_flow,
+    farneback_flow_async,
+    flow_regions,
+    human_driven_regions,
+)
 from dynslam_lab.geometry.se3 import make_pose
 from tests.dynamic.scenes import CAM, two_layer_frames
 
@@ -59,3 +66,13 @@ def test_flow_regions_on_a_moving_person_with_ego_motion_removed():
     assert np.nanmedian(small[5:110, 5:50]) < 1.0
     with pytest.raises(ValueError, match="person_mask"):
         flow_regions(f1.gray, f0.gray, mask[:10], config=FlowConfig())
+
+
+def test_flow_computed_ahead_in_the_worker_thread_gives_the_same_regions():
+    (f0, _, _), (f1, mask, _) = two_layer_frames(2)
+    T_c_p = make_pose(np.eye(3), np.array([-0.02, 0.0, 0.0]))
+    dense = farneback_flow_async(f1.gray, f0.gray, FlowConfig()).result()
+    assert np.array_equal(dense, farneback_flow(f1.gray, f0.gray, FlowConfig()))
+    ahead = flow_regions(f1.gray, f0.gray, mask, f1.depth, CAM, T_c_p, FlowConfig(), flow=dense)
+    here = flow_regions(f1.gray, f0.gray, mask, f1.depth, CAM, T_c_p, FlowConfig())
+    assert np.array_equal(ahead.region, here.region) and ahead.threshold_px == here.threshold_px

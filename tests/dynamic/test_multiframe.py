@@ -223,3 +223,71 @@ def test_far_frames_are_dropped_when_a_loop_closure_moves_the_kept_poses():
     assert not stale & {f.index for f in s.memory.far}  # only a frame leaving the history since, with its new pose
     with pytest.raises(ValueError, match="far_min_filter_cells"):
         MultiFrameConfig(far_min_filter_cells=-1)
+
+
+def _free_space_by_frame(X_w, refs, camera, config):
+    """The forward test written point by point and frame by frame (float64): the reference for the
+    vectorised :func:`free_space_test`. Returns the counts and, per point and frame, the distance of
+    ``z_j - z_p`` to its nearest threshold and of the projection to its nearest rounding or border edge."""
+    m = len(X_w)
+    viol, agree, occl = np.zeros(m, int), np.zeros(m, int), np.zeros(m, int)
+    slack = np.full(m, np.inf)
+    for T_w_j, d in refs:
+        h, w = d.shape
+        X = transform_points(se3_inv(T_w_j), X_w)
+        for i, (x, y, z) in enumerate(X):
+            u, v = camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy
+            b = config.border_px
+            edge = min(abs(u - np.floor(u) - 0.5), abs(v - np.floor(v) - 0.5), abs(u - b), abs(v - b),
+                       abs(u - (w - 1 - b)), abs(v - (h - 1 - b)))
+            slack[i] = min(slack[i], edge)
+            if not (z > 0.05 and b <= u <= w - 1 - b and b <= v <= h - 1 - b):
+                continue
+            zj = float(d[int(round(v)), int(round(u))])
+            if zj <= 0:
+                continue
+            tau = max(config.depth_m, config.depth_quadratic * z * z)
+            dz = zj - z
+            slack[i] = min(slack[i], abs(abs(dz) - tau))
+            viol[i] += dz > tau
+            agree[i] += abs(dz) <= tau
+            occl[i] += dz < -tau
+    return viol, agree, occl, slack
+
+
+def test_the_vectorised_free_space_test_counts_as_the_point_by_point_one():
+    rng = np.random.default_rng(3)
+    small = CAM.scaled(0.25)
+    refs = []
+    for k in range(4):
+        d = rng.uniform(1.0, 5.0, (small.height, small.width)).astype(np.float32)
+        d[rng.random(d.shape) < 0.1] = 0  # holes
+        refs.append((make_pose(None, rng.normal(0, 0.05, 3)), d))
+    uv = np.column_stack([rng.uniform(-20, small.width + 20, 400), rng.uniform(-20, small.height + 20, 400)])
+    X_w = small.backproject(uv, rng.uniform(0.5, 5.0, 400))
+    viol, agree, occl, slack = _free_space_by_frame(X_w, refs, small, CFG)
+    clear = slack > 1e-3  # float32 rounding cannot flip these
+    assert clear.mean() > 0.9
+    for margin in (True, False):
+        fs = free_space_test(X_w, refs, small, CFG, margin=margin)
+        assert np.array_equal(fs.violations[clear], viol[clear])
+        assert np.array_equal(fs.agreements[clear], agree[clear])
+        assert np.array_equal(fs.occlusions[clear], occl[clear])
+        assert np.isnan(fs.margin_m).all() != margin
+
+
+def test_window_span_matches_a_window_by_window_loop():
+    from dynslam_lab.dynamic.stages import _window_span
+
+    rng = np.random.default_rng(4)
+    d = rng.uniform(1.0, 4.0, (60, 80)).astype(np.float32)
+    d[rng.random(d.shape) < 0.01] = 0
+    uv = np.column_stack([rng.uniform(-2, 82, 300), rng.uniform(-2, 62, 300)])
+    for r in (0, 2, 5):
+        expected = []
+        for u, v in uv:
+            c, row = int(np.rint(u)), int(np.rint(v))
+            win = d[max(row - r, 0) : row + r + 1, max(c - r, 0) : c + r + 1]
+            full = row - r >= 0 and c - r >= 0 and row + r < d.shape[0] and c + r < d.shape[1]
+            expected.append(win.max() - win.min() if full and (win > 0).all() else np.inf)
+        assert np.array_equal(_window_span(d, uv, r), np.array(expected))
