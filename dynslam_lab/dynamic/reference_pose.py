@@ -79,6 +79,8 @@ class ReferencePoseConfig:
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
     dominant_share: float = 0.4  # a surface holding this share of the matches ... (step 3b); ours
+    dominant_gain: float = 1.5  # ... when the room's median error under the pose with the surface is this many times that under its own pose (the surface pulled the pose) ...; ours
+    dominant_gain_weak: float = 1.15  # ... or this many times while the surface misses by twice the bound; ours
     dominant_area_ratio: float = 1.5  # ... is tested against the matches on surfaces this many times larger (the room), and counts as the minority when it misses them; ours
     max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
     max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
@@ -98,9 +100,11 @@ class ReferencePoseConfig:
         if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1 or self.segment_max_movers < 0:
             raise ValueError("ReferencePoseConfig: segment_min_matches >= 6, segment_min_px > 0, segment_ratio > 1 and "
                              "segment_max_movers >= 0 required")
-        if not 0 < self.dominant_share <= 1 or not self.dominant_area_ratio >= 1:
-            raise ValueError("ReferencePoseConfig: dominant_share in (0, 1] and dominant_area_ratio >= 1 required, got "
-                             f"{self.dominant_share}, {self.dominant_area_ratio}")
+        if (not 0 < self.dominant_share <= 1 or not self.dominant_area_ratio >= 1
+                or not self.dominant_gain >= self.dominant_gain_weak >= 1):
+            raise ValueError("ReferencePoseConfig: dominant_share in (0, 1], dominant_area_ratio >= 1 and dominant_gain >= "
+                             f"dominant_gain_weak >= 1 required, got {self.dominant_share}, {self.dominant_area_ratio}, "
+                             f"{self.dominant_gain}, {self.dominant_gain_weak}")
         if self.min_inliers < 6:
             raise ValueError(f"ReferencePoseConfig.min_inliers must be >= 6 (a pose has 6 unknowns), got {self.min_inliers}")
 
@@ -270,7 +274,11 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     beyond the prediction's gate), refined from wide Cauchy scales (``(8,) + scales_px``, five steps
     each). The room agrees with the mover's pose within a pixel or so, but refined on its own it returns
     to the static world's; under that pose the surface misses its map points and counts as the
-    minority: the static world is the majority of the scene, not of its texture. Every other surface
+    minority: the static world is the majority of the scene, not of its texture. Only when the surface
+    pulled ``T_c_w``: the room's median error under ``T_c_w`` must be ``dominant_gain`` times that under
+    its own pose, or ``dominant_gain_weak`` times while the surface misses by twice the bound (a room that
+    fits ``T_c_w`` as well is no evidence, only a weaker constraint: refined alone, a room of a few dozen
+    matches lets a static surface miss by up to ~1.7 times the bound). Every other surface
     smaller than the room's (``dominant_area_ratio`` times the surface's area) whose matches miss the
     room's pose as the surface does (median error beyond ``segment_min_px`` and ``segment_ratio`` times
     the room's own) goes with it: the object's other faces.
@@ -284,6 +292,7 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
         total = int(use.sum())
         cand = labs[(counts >= config.segment_min_matches) & (total - counts >= config.segment_min_matches)]
         best, best_key, best_T, best_fit = None, None, None, None
+        e_T = _reprojection_px(T, X_w, uv, K) / sigma
         gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
         for lab, count in zip(cand, counts[np.isin(labs, cand)]):
             on = (labels == lab) & use
@@ -306,6 +315,12 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
             bound = max(config.segment_min_px, config.segment_ratio * r_rest)
             if r_on <= bound:
                 continue
+            if dominant:  # evidence that the surface pulled T: the room fits its own pose clearly better, or
+                # somewhat better while the surface misses by twice the bound (a poorly constrained room's pose
+                # alone makes a static surface miss by less)
+                gain = np.median(e_T[fit]) / max(np.median(e[fit]), 1e-9)
+                if not (gain >= config.dominant_gain or (gain >= config.dominant_gain_weak and r_on >= 2 * bound)):
+                    continue
             minority = 2 * count < total or dominant
             if not minority and (T_pred is None or _pose_gap_px(T_l, T_pred, X_w[use], K) >= gap_with):
                 continue  # most of the map would be moving, and the prediction does not say so

@@ -538,7 +538,7 @@ def temporal_stage(w: FrameWork) -> None:
         fresh |= w.stages.get(name, fresh)
     with np.errstate(invalid="ignore"):
         still_off = ref.residual_px > w.config.reference.inlier_px
-    col = ref.known_moving | ref.surface_moved | (ref.moved & fresh)
+    col = (ref.known_moving & still_off) | ref.surface_moved | (ref.moved & fresh)
     col |= _held_surfaces(w, ref)
     w.stages["temporal"] = col
     prev = w.prev
