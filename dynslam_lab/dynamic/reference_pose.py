@@ -136,6 +136,7 @@ class ReferencePose:
     moved: np.ndarray
     surface_moved: np.ndarray
     known_moving: np.ndarray
+    room: bool = False  # step 3b took the room's pose: a surface holding most matches moved against it
 
     @classmethod
     def none(cls, n: int) -> "ReferencePose":
@@ -410,4 +411,5 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
         gone = np.unique(lab_all[kp][moving])
         out.surface_moved |= np.isin(lab_all, gone[gone > 0])
     out.known_moving[kp] = known_moving
+    out.room = room
     return out

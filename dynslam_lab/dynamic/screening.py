@@ -131,8 +131,8 @@ class Screener:
         self.last_reference = None
         #: the last frame's reduced-grid evidence (``FrameWork.grid_evidence``; ``plots.draw_grid`` shows it)
         self.last_grid: dict[str, np.ndarray] = {}
-        #: ids of map points on surfaces the last frame found moving against the static world (reference pose,
-        #: step 3b): their stored positions are stale, the SLAM system removes them from its map
+        #: ids of map points on surfaces the last frame found moving against the room (reference pose, step 3b,
+        #: a surface holding most matches): their stored positions are stale, the SLAM system removes them
         self.moved_map_ids = np.zeros(0, np.int64)
 
     def __repr__(self) -> str:
@@ -217,7 +217,7 @@ class Screener:
             if moving.any():
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
             moved = ref.surface_moved & (ref.map_index >= 0)
-            if self.config.temporal.cull_moved_points and moved.any():
+            if self.config.temporal.cull_moved_points and ref.room and moved.any():  # the room test's verdict only
                 self.moved_map_ids = np.unique(context.map_ids[ref.map_index[moved]])
         region = w.grid_region
         if region is None and w.dynamic.any() and "multiframe" in self.stages:

@@ -34,7 +34,7 @@ class TemporalConfig:
 
     dilate_cells: int = 0  # the previous region grows by this many cells before the lookup; ours, 0 (a grown prior spills onto uncovered background)
     max_moving_points: int = 200_000  # map point ids remembered at most (oldest forgotten first); ours
-    cull_moved_points: bool = True  # map points on a surface found moving against the static world are removed from the SLAM map (their stored positions are stale); ours
+    cull_moved_points: bool = True  # map points on a surface found moving against the room (reference pose step 3b) are removed from the SLAM map (their stored positions are stale); ours (for every surface step 3b finds: carried_xyz 0.09 -> 0.45 m)
     hold_overlap: float = 0.5  # a surface lying this share inside the cells of surfaces seen moving in the previous frame is the same object (fraction of its cells); ours
     hold_frames: int = 10  # ... and stays dynamic this many frames after the last fresh verdict on it (frames; 1/3 s at 30 Hz: 30 and 60 held boxes that had stopped, keypoint precision 0.61 and 0.41 against 0.79 on boxes_xyz); ours
 
