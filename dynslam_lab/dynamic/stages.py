@@ -561,7 +561,7 @@ def _held_surfaces(w: FrameWork, ref: ReferencePose) -> np.ndarray:
     cfg = w.config.temporal
     mem = w.memory
     out = np.zeros(w.n, bool)
-    if "surface_labels" not in w._cache or ref.T_c_w is None:
+    if cfg.hold_frames <= 0 or "surface_labels" not in w._cache or ref.T_c_w is None:
         mem.held = None
         return out
     grid = w._cache["surface_labels"]

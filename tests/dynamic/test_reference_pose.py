@@ -156,13 +156,15 @@ def test_a_cart_holding_most_matches_that_pulled_the_pose_is_found_against_the_r
     cart = np.arange(len(uv)) >= n_room
     T_followed = refine_pose(T_TRUE, X_w[cart], uv[cart], CAM.K)  # the pose that followed the cart
     assert _pose_error(T_followed, T_TRUE)[0] > 0.02
-    cfg = ReferencePoseConfig()
+    cfg = ReferencePoseConfig(room_test=True)
     # without the surfaces' areas the cart is the majority: the room, the minority, is judged to be moving
     wrong = inconsistent_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, cfg, T_followed)
     assert wrong[~cart].all() and not wrong[cart].any()
     moving, T_room, room = moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, cfg, T_followed, cells)
     assert room and moving[cart].all() and not moving[~cart].any()
     assert _pose_error(T_room, T_TRUE)[0] < 3e-3
+    # off (the default), the room test does not run
+    assert not moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, ReferencePoseConfig(), T_followed, cells)[2]
     # the same scene with the cart still: nothing moves, the pose stays
     X_w, uv, labels, cells, n_room = _cart_scene(0.0)
     T = refine_pose(T_TRUE, X_w, uv, CAM.K)
