@@ -131,6 +131,9 @@ class Screener:
         self.last_reference = None
         #: the last frame's reduced-grid evidence (``FrameWork.grid_evidence``; ``plots.draw_grid`` shows it)
         self.last_grid: dict[str, np.ndarray] = {}
+        #: ids of map points on surfaces the last frame found moving against the room (reference pose, step 3b,
+        #: a surface holding most matches): their stored positions are stale, the SLAM system removes them
+        self.moved_map_ids = np.zeros(0, np.int64)
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
@@ -212,10 +215,14 @@ class Screener:
         ref = w.reference_if_computed
         self.last_reference = ref  # for notebooks and diagnostics: the reference pose of the last frame
         self.last_grid = w.grid_evidence()
+        self.moved_map_ids = np.zeros(0, np.int64)
         if ref is not None and context is not None:
             moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
             if moving.any():
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
+            moved = ref.surface_moved & (ref.map_index >= 0)
+            if self.config.temporal.cull_moved_points and ref.room and moved.any():  # the room test's verdict only
+                self.moved_map_ids = np.unique(context.map_ids[ref.map_index[moved]])
         region = w.grid_region
         if region is None and w.dynamic.any() and "multiframe" in self.stages:
             region = splat(w.uv, w.dynamic, self.config.multiframe.factor, w.small_depth.shape)

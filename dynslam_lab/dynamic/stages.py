@@ -70,6 +70,7 @@ class ScreenerMemory:
     far: FarFrames = field(default_factory=lambda: FarFrames(1, 0))  # frames older than the history (multiframe)
     rng: np.random.Generator = field(init=False)
     own_pose: np.ndarray | None = None  # T_w_c chained from two-frame rough poses when no SLAM context comes
+    held: tuple[int, np.ndarray, int] | None = None  # (frame index, (h, w) cells, frames since fresh) of surfaces seen moving
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.seed)
@@ -80,6 +81,7 @@ class ScreenerMemory:
         self.moving_points.clear()
         self.rng = np.random.default_rng(self.seed)
         self.own_pose = None
+        self.held = None
 
 
 class FrameWork:
@@ -180,8 +182,10 @@ class FrameWork:
         previous frame's pose moved by the two-frame rough pose."""
 
         def run():
+            labels = self.surfaces()  # also caches the cells of each surface
             ref = map_reference_pose(self.context, self.uv_undistorted, self.camera, self.config.reference,
-                                     exclude_ids=self.memory.moving_points.array(), surfaces=self.surfaces())
+                                     exclude_ids=self.memory.moving_points.array(), surfaces=labels,
+                                     surface_cells=self._cache["surface_cells"])
             if ref.T_c_w is None:
                 ref = self._two_frame_reference()
             return ref
@@ -238,7 +242,9 @@ class FrameWork:
         def run():
             cfg = self.config.regions
             small = self.small_depth
-            _, labels = surface_segments(small, self.grid_camera, cfg.continuity_rel, cfg.crease_deg)
+            n_labels, labels = surface_segments(small, self.grid_camera, cfg.continuity_rel, cfg.crease_deg)
+            self._cache["surface_cells"] = np.bincount(labels.ravel(), minlength=n_labels + 1)
+            self._cache["surface_labels"] = labels
             r, c, inside = cells_at(self.uv, self.config.multiframe.factor, small.shape)
             zc = small[r, c]
             with np.errstate(invalid="ignore"):
@@ -558,6 +564,7 @@ def temporal_stage(w: FrameWork) -> None:
     with np.errstate(invalid="ignore"):
         still_off = ref.residual_px > w.config.reference.inlier_px
     col = (ref.known_moving & still_off) | ref.surface_moved | (ref.moved & fresh)
+    col |= _held_surfaces(w, ref)
     w.stages["temporal"] = col
     prev = w.prev
     if prev is None or prev.region is None or prev.T_w_c is None or ref.T_c_w is None:
@@ -566,6 +573,48 @@ def temporal_stage(w: FrameWork) -> None:
     prev_small = _past_small_depth(prev, w.config.multiframe.factor)
     w.prior_cells = warp_region(prev.region, T_p_c, w.small_depth, w.grid_camera, w.config.temporal.dilate_cells,
                                 prev_depth=prev_small, depth_m=w.config.multiframe.depth_m)
+
+
+def _held_surfaces(w: FrameWork, ref: ReferencePose) -> np.ndarray:
+    """Surfaces seen moving against the static world stay dynamic (ours): the cells of the surfaces the
+    reference pose found moving (step 3b) are carried into the next frame along the camera motion
+    (:func:`~dynslam_lab.dynamic.temporal.warp_region`); a surface of this frame lying at least
+    ``hold_overlap`` inside them is the same object, and its keypoints are dynamic, matched to the map or
+    not, until ``hold_frames`` frames have passed without a fresh verdict. The object's map points are
+    gone (culled, :attr:`Screener.moved_map_ids`), so without this memory its next frame would carry no
+    evidence against it. Returns ``(N,)`` bool; updates the memory."""
+    cfg = w.config.temporal
+    mem = w.memory
+    out = np.zeros(w.n, bool)
+    if cfg.hold_frames <= 0 or "surface_labels" not in w._cache or ref.T_c_w is None:
+        mem.held = None
+        return out
+    grid = w._cache["surface_labels"]
+    labels = w.surfaces()
+    fresh = np.unique(labels[ref.surface_moved & (labels > 0)])
+    held = np.zeros(0, np.int64)
+    age = 0
+    prev = w.prev
+    if mem.held is not None and prev is not None and prev.index == mem.held[0] and prev.T_w_c is not None:
+        T_p_c = se3_inv(prev.T_w_c) @ se3_inv(ref.T_c_w)
+        carried = warp_region(mem.held[1], T_p_c, w.small_depth, w.grid_camera)
+        n_lab = int(grid.max()) + 1
+        inside = np.bincount(grid[carried], minlength=n_lab)
+        cells = w._cache["surface_cells"][:n_lab]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = inside / cells
+        held = np.flatnonzero(frac >= cfg.hold_overlap)
+        held = held[held > 0]
+        age = mem.held[2] + 1
+    if len(fresh):
+        age = 0
+    keep = np.union1d(fresh, held) if age <= cfg.hold_frames else fresh
+    if len(keep):
+        out = np.isin(labels, keep) & (labels > 0)
+        mem.held = (w.frame.index, np.isin(grid, keep), age)
+    else:
+        mem.held = None
+    return out
 
 
 def regions_stage(w: FrameWork) -> None:

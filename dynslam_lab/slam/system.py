@@ -262,6 +262,9 @@ class System:
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
             if len(dynamic) != len(feats):
                 raise ValueError(f"screener returned {len(dynamic)} verdicts for {len(feats)} keypoints (frame {frame.index})")
+            moved = getattr(self.screener, "moved_map_ids", None)  # map points the screener saw move: stale positions
+            if moved is not None and len(moved):
+                self.map.remove_points(moved[self.map.alive[moved]])
         return dynamic, table
 
     def _screening_context(self, feats: Features, timestamp: float) -> ScreeningContext:

@@ -1,0 +1,54 @@
+"""A mover mapped while it stood still that starts slowly (with the room test on: ``ReferencePoseConfig.room_test``,
+``TemporalConfig.hold_frames = 10``) (the mechanism traced on random_108/109/112,
+docs/robustness.md): geometry without a detector must find it, keep the camera on the static world, and leave
+the static keypoints alone. Rendered scene ``random_109``: a textured cart 1.3 m in front of a static camera,
+mapped at frame 0 with half the keypoints, starts at frame 23."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dynslam_lab.config import Config
+from dynslam_lab.datasets import stress
+from dynslam_lab.datasets.synthetic import synthetic_sequence
+from dynslam_lab.datasets.tum import TumSequence
+from dynslam_lab.dynamic.oracle import truth_dynamic
+from dynslam_lab.geometry.se3 import se3_inv
+from dynslam_lab.pipeline import build_pipeline
+
+N_FRAMES = 36
+
+
+@pytest.mark.slow
+def test_a_cart_that_stood_still_and_starts_slowly_is_flagged_and_not_followed():
+    seq = TumSequence(synthetic_sequence(stress.random_scene_preset(109, name="random_109", n_frames=N_FRAMES)))
+    cfg = Config()  # the room test and the held surfaces are off by default (docs/robustness.md)
+    scr = replace(cfg.screening, reference=replace(cfg.screening.reference, room_test=True),
+                  temporal=replace(cfg.screening.temporal, hold_frames=10))
+    system = build_pipeline(replace(cfg, screening=scr), seq.camera, detector="none", filters="geometry", loop_closing=False)
+    T0 = None
+    errors, tp, fp, fn, cart_in_map = [], 0, 0, 0, []
+    for i in range(len(seq)):
+        frame = seq[i]
+        res = system.process(frame)
+        T0 = frame.T_w_c_gt if T0 is None else T0
+        assert res.T_w_c is not None, f"frame {i} lost"
+        truth_rel = se3_inv(T0) @ frame.T_w_c_gt
+        errors.append(np.linalg.norm(res.T_w_c[:3, 3] - truth_rel[:3, 3]))
+        if i >= 26:  # the cart has moved 2-10 cm since it was mapped
+            truth = truth_dynamic(frame, res.uv)
+            dyn = np.asarray(res.dynamic, bool)
+            tp += int((dyn & truth).sum())
+            fp += int((dyn & ~truth).sum())
+            fn += int((~dyn & truth).sum())
+    errors = np.array(errors)
+    # before this mechanism the tracker followed the cart: 2.2 cm at frame 26, 7.6 cm at 30, 14 cm at 35 (and on);
+    # now the cart is found at 24-27 (measured peak 3.1 cm at frame 27) and the camera back within 1.5 cm by 28
+    assert errors[:23].max() < 0.01
+    assert errors[26:].max() < 0.05 and errors[29:].max() < 0.02, errors[26:]
+    # the cart's keypoints are dynamic, most of the static world's are not (frames 26-35, measured precision 0.76,
+    # recall 0.87; where the false alarms lie was not traced)
+    assert tp / (tp + fp) >= 0.7 and tp / (tp + fn) >= 0.8, (tp, fp, fn, tp / (tp + fp), tp / (tp + fn))
