@@ -40,12 +40,17 @@ For each new frame, with only the keypoints the screening stage judged static:
    over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
-**Dense depth term** (ours, ``dense``, off by default: docs/tracking.md "Dense depth term" has the
+**Dense depth term** (ours, ``dense``: docs/tracking.md "Dense depth term" has the
 measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
 its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
-prediction), ``"weak"`` only frames the features fail or keep few inliers, so plain walls (few
-features) and repeated patterns (aliased matches) keep a pose; depth samples near keypoints judged
-dynamic are left out. ``"off"`` is ORB-SLAM2.
+prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` (default) only
+frames the features fail, or keep few inliers with a pose off the motion prediction (suspect), so plain
+walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
+ORB-SLAM2.
+
+**Far points** (ours, ``new_point_depth``): a keyframe makes a map point of every static keypoint with
+depth up to 8 m, not only the close ones: ORB-SLAM2 triangulates far points between keyframes, we do not
+(docs/tracking.md "Far points from depth").
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.

@@ -281,3 +281,28 @@ def test_dense_auto_engages_only_on_weak_and_suspect_feature_poses():
     assert needs(60, 0.04) and needs(60, 0.0, 1.5)  # few inliers and jumped
     assert not needs(150, 0.2, 5.0)  # many inliers: the features are trusted
     assert needs(60, mode="weak") and not needs(60, 0.2, 5.0, mode="off") and not needs(0, ok=False, mode="off")
+
+
+@pytest.mark.parametrize("new_point_depth", [0.0, 8.0])
+def test_keyframe_points_from_depth_up_to_new_point_depth(new_point_depth):
+    """A keyframe of a room 4-5 m deep (the rendered room's depth x 1.8): with ``new_point_depth = 0``
+    (ORB-SLAM2: close points, z < th_depth bf / fx = 3.05 m, then the closest far ones up to 100) it
+    gets 100 points; with 8 m every static keypoint with depth becomes a point, at the depth-image's
+    3D position."""
+    f0 = scene.frames(1, "xyz")[0]
+    far = dataclasses.replace(f0, depth=f0.depth * 1.8)
+    s = System(CAM, Config(tracking=TrackingConfig(new_point_depth=new_point_depth)))
+    assert s.close_depth == pytest.approx(4.0 * 400.0 / CAM.fx)
+    sf = make_slam_frame(far, extract_features(far.rgb[:, :, 0]))
+    sf.T_w_c = f0.T_w_c_gt
+    z = sf.depth
+    has = sf.static & np.isfinite(z)
+    assert np.nanmin(z[has]) > s.close_depth  # every keypoint is "far" for ORB-SLAM2
+    kf, new = s._new_keyframe(sf, far)
+    if new_point_depth == 0.0:
+        assert len(new) == 100 and np.all(z[kf.map_point_ids >= 0] <= np.sort(z[has])[99])
+    else:
+        assert len(new) == int((has & (z <= 8.0)).sum()) > 500
+    idx = np.flatnonzero(kf.map_point_ids >= 0)
+    expected = transform_points(f0.T_w_c_gt, sf.points_c[idx])
+    assert np.allclose(s.map.xyz[kf.map_point_ids[idx]], expected)
