@@ -155,6 +155,8 @@ class System:
             self.tracker.database, self.tracker.vocabulary = self._own_database, voc
         tc = config.tracking
         self.close_depth = tc.th_depth * tc.bf / camera.fx
+        # keyframe points are made from depth up to here (ours: no triangulation of far points)
+        self.new_point_depth = max(self.close_depth, tc.new_point_depth)
         self.mapper = LocalMapper(self.map, camera, config.local_mapping, tc.bf, self.close_depth, orb.scale_factor)
         # Per tracked frame: (timestamp, reference keyframe id, T_ref_c).
         self._anchors: list[tuple[float, int, np.ndarray]] = []
@@ -289,7 +291,7 @@ class System:
         thumb = cv2.resize(frame.rgb, (160, 120), interpolation=cv2.INTER_AREA)
         kf = KeyFrame.from_frame(self.map.new_keyframe_id(), sf, thumbnail=thumb)
         self.map.add_keyframe(kf)
-        close = np.inf if all_points else self.close_depth
+        close = np.inf if all_points else self.new_point_depth
         new = create_points_from_depth(self.map, kf, close, self.config.tracking.kf_new_points_min, frame.rgb)
         sf.map_point_ids = kf.map_point_ids.copy()
         sf.outlier[:] = False

@@ -40,12 +40,17 @@ For each new frame, with only the keypoints the screening stage judged static:
    over recent and evenly spaced keyframes when there is no database), descriptor matching,
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
-**Dense depth term** (ours, ``dense``, off by default: docs/tracking.md "Dense depth term" has the
+**Dense depth term** (ours, ``dense``: docs/tracking.md "Dense depth term" has the
 measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
 its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
-prediction), ``"weak"`` only frames the features fail or keep few inliers, so plain walls (few
-features) and repeated patterns (aliased matches) keep a pose; depth samples near keypoints judged
-dynamic are left out. ``"off"`` is ORB-SLAM2.
+prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` (default) only
+frames the features fail, or keep few inliers with a pose off the motion prediction (suspect), so plain
+walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
+ORB-SLAM2.
+
+**Far points** (ours, ``new_point_depth``): a keyframe makes a map point of every static keypoint with
+depth up to 8 m, not only the close ones: ORB-SLAM2 triangulates far points between keyframes, we do not
+(docs/tracking.md "Far points from depth").
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
@@ -120,6 +125,7 @@ class TrackingConfig:
     kf_close_tracked: int = 100  # fewer tracked close points than this ...; ORB-SLAM2: 100
     kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
+    new_point_depth: float = 8.0  # m; a keyframe makes a map point of every static keypoint with depth below this (or below the close depth th_depth * bf / fx, whichever is farther), then far ones up to kf_new_points_min; ours: ORB-SLAM2 makes only close points from depth and triangulates far ones between keyframes, which we do not, so a room 3-5 m deep had ~100 points per keyframe and tracking ran out of points (docs/tracking.md "Far points from depth"); 0 = the close depth only (ORB-SLAM2)
     suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
     suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
     suspect_trusted_inliers: int = 0  # a pose with at least this many inliers is never suspect (a tracker following a mover keeps few); 0 = off; ours, docs/tracking.md "Graceful failure"
@@ -131,7 +137,7 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense: str = "off"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense: str = "auto"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
@@ -146,8 +152,8 @@ class TrackingConfig:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
                     "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
-        if self.dense not in ("off", "weak", "always"):
-            raise ValueError(f"TrackingConfig.dense must be 'off', 'weak' or 'always', got {self.dense!r}")
+        if self.dense not in ("off", "weak", "auto", "always"):
+            raise ValueError(f"TrackingConfig.dense must be 'off', 'weak', 'auto' or 'always', got {self.dense!r}")
         if not self.dense_mask_radius >= 0:
             raise ValueError(f"TrackingConfig.dense_mask_radius must be >= 0, got {self.dense_mask_radius}")
         if not 0 < self.dense_min_fraction <= 1:
@@ -164,7 +170,7 @@ class TrackingConfig:
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
                         "dense_min_inliers")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
-        for name in ("motion_refine_radius", "match_depth_tolerance"):
+        for name in ("motion_refine_radius", "match_depth_tolerance", "new_point_depth"):
             if getattr(self, name) < 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in positive:
@@ -590,7 +596,7 @@ class Tracker:
                 ok, self.method = True, "dense"
             else:
                 ok = self._track_features(frame)
-                if cfg.dense == "weak" and (not ok or self.n_inliers < cfg.dense_below_inliers):
+                if self._needs_dense(frame, ok):
                     kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers, self.ref_kf,
                             self.method)
                     frame.outlier[:] = False
@@ -623,6 +629,26 @@ class Tracker:
             self.velocity = None
         self.state = state
         return state
+
+    def _needs_dense(self, frame: SlamFrame, ok: bool) -> bool:
+        """Whether a frame the features tracked (``ok``) or failed is tracked again with the dense term:
+        ``"weak"``: failed or fewer than ``dense_below_inliers`` inliers; ``"auto"``: failed, or fewer
+        inliers *and* a pose the graceful-failure guard calls suspect (farther than ``suspect_translation``
+        / ``suspect_rotation_deg`` from the constant-velocity prediction: a few features on a plain wall or
+        a repeated pattern that jumped). Ours, docs/tracking.md "Dense depth term, automatic"."""
+        cfg = self.cfg
+        if cfg.dense in ("off", "always"):
+            return False
+        if not ok:
+            return True
+        if self.n_inliers >= cfg.dense_below_inliers:
+            return False
+        if cfg.dense == "weak":
+            return True
+        if self.predicted_T_c_w is None or frame.T_w_c is None:
+            return False
+        dt, dr = pose_distance(self.predicted_T_c_w @ frame.T_w_c)
+        return dt > cfg.suspect_translation or dr > cfg.suspect_rotation_deg
 
     def _track_features(self, frame: SlamFrame) -> bool:
         """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""

@@ -16,6 +16,8 @@ from dynslam_lab.slam.loop_closing import (
     consistent_candidates,
     match_points_3d,
     refine_loop_pose,
+    run_global_ba,
+    take_snapshot,
     verify_loop,
 )
 from dynslam_lab.slam.map import Map
@@ -343,3 +345,38 @@ def test_fusion_of_a_correction_at_once_equals_keyframe_by_keyframe(monkeypatch)
     np.testing.assert_array_equal(a.alive, b.alive)
     for k in mp.keyframes:
         np.testing.assert_array_equal(a.keyframes[k].map_point_ids, b.keyframes[k].map_point_ids)
+
+
+@pytest.mark.parametrize("min_observations", [0, 30])
+def test_global_ba_holds_keyframes_with_few_points(min_observations):
+    """``global_ba_min_observations``: a keyframe observing 6 points (a depth-tracked keyframe on a plain wall)
+    is held where the pose graph put it (30), or moved by the BA (0); the well-observed keyframes are
+    refined towards the truth either way (exact observations, their poses 1 cm off, points 5 mm off)."""
+    rng = np.random.default_rng(4)
+    L = rng.uniform([-1.5, -1.0, 2.0], [1.5, 1.0, 4.0], (300, 3))
+    desc = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    T_gt = [make_pose(so3_exp([0.0, 0.02 * k, 0.0]), [0.05 * k, 0.0, 0.0]) for k in range(4)]
+    T_est = [T_gt[0]] + [T @ make_pose(so3_exp(rng.normal(0, 0.002, 3)), rng.normal(0, 0.01, 3)) for T in T_gt[1:]]
+    mp = Map()
+    for k in range(4):
+        seen = np.arange(300) if k < 3 else np.arange(6)  # keyframe 3: a handful of points
+        Xc = transform_points(se3_inv(T_gt[k]), L[seen])
+        uv, _ = CAM.project(Xc)
+        kf = KeyFrame(id=mp.new_keyframe_id(), frame_index=k, timestamp=float(k), _T_w_c=T_est[k], uv=uv,
+                      descriptors=desc[seen], octave=np.zeros(len(seen), np.int64), angle=np.zeros(len(seen)),
+                      points_c=Xc, map_point_ids=np.full(len(seen), -1, np.int64), static=np.ones(len(seen), bool))
+        if k:
+            kf.map_point_ids[:] = seen
+            kf.parent_id = k - 1
+        mp.add_keyframe(kf)
+        if k == 0:
+            mp.add_points(L + rng.normal(0, 0.005, L.shape), desc, kf, np.arange(300))
+    snap = take_snapshot(mp)
+    corr = run_global_ba(snap, {0}, CAM, BF, 10, min_observations)
+    index = snap.index()
+    err_before = [np.linalg.norm(T_est[k][:3, 3] - T_gt[k][:3, 3]) for k in (1, 2)]
+    err_after = [np.linalg.norm(corr.T_new[index[k]][:3, 3] - T_gt[k][:3, 3]) for k in (1, 2)]
+    assert max(err_after) < 0.3 * min(err_before), (err_before, err_after)
+    moved = np.abs(corr.T_new[index[3]] - T_est[3]).max()
+    assert (moved == 0.0) if min_observations == 30 else (moved > 1e-3)
+    assert corr.stats["gba_held_weak"] == (1 if min_observations == 30 else 0)

@@ -1,14 +1,16 @@
-"""A loop closed through a room the default vocabulary never saw (issue 12), end to end.
+"""A loop closed through rooms the default vocabulary never saw (issue 12), end to end.
 
-``loop_noise`` of the stress suite (:data:`dynslam_lab.datasets.stress.STRESS_LOOPS`): a randomised
-room with noise textures, no movers, the camera circling once and returning to its start, rendered
-with 300 frames. The system as ``dynslam run`` builds it (loop closing in its worker thread:
-verification and correction) must close exactly one loop, from the last part of the circle to its
-start, and the trajectory after closure must be no worse than without loop closing and within the
-issue's 2 cm. About 1.5 minutes on 2 cores with the render cached.
+``loop_noise`` and ``loop_photo`` of the stress suite (:data:`dynslam_lab.datasets.stress.STRESS_LOOPS`):
+randomised rooms with noise textures / photographs, no movers, the camera circling once and returning to
+its start, rendered with 300 frames. The system as ``dynslam run`` builds it (loop closing in its worker
+thread: verification and correction) must track every frame, close exactly one loop, from the last part
+of the circle to its start, and the trajectory after closure must be no worse than without loop closing
+and within the issue's 2 cm. About 1.5 minutes per room on 2 cores with the render cached.
 
-The other styles of the suite are not used here: tracking itself loses frames on ``loop_pattern``,
-``loop_photo`` and ``loop_flat`` (see docs/loop_closing.md, "Unseen scenes").
+``loop_photo`` lost frames before the revisit (relocalised there, so no loop) until keyframes made points
+of far keypoints too (``tracking.new_point_depth``). ``loop_pattern`` (a style the vocabulary was trained
+on) and ``loop_flat`` (closed, ATE 17-20 mm: the plain wall is tracked by depth alone) are measured on
+three sensor seeds in docs/loop_closing.md, "Unseen scenes: the loop found", not here (CI time).
 """
 
 from __future__ import annotations
@@ -40,8 +42,9 @@ def _run(seq: TumSequence, loop: bool):
     return system
 
 
-def test_loop_found_on_an_unseen_noise_room():
-    preset = {q.name: q for q in stress_suite(n_frames=N, loops=True)}["loop_noise"]
+@pytest.mark.parametrize("room", ["loop_noise", "loop_photo"])
+def test_loop_found_in_an_unseen_room(room):
+    preset = {q.name: q for q in stress_suite(n_frames=N, loops=True)}[room]
     seq = TumSequence(synthetic_sequence(preset))
     with_loop, without = _run(seq, True), _run(seq, False)
     assert not with_loop.lost_frames and not without.lost_frames

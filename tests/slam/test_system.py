@@ -52,7 +52,8 @@ def test_lost_on_blank_frame_then_relocalized():
     s = System(CAM, Config())
     for f in frames[:20]:
         assert s.process(f).tracked
-    blank = Frame(20, frames[20].timestamp, np.full_like(frames[20].rgb, 120), frames[20].depth, CAM)
+    # no texture and no depth (with depth alone the default dense term, tracking.dense = "auto", tracks it)
+    blank = Frame(20, frames[20].timestamp, np.full_like(frames[20].rgb, 120), np.zeros_like(frames[20].depth), CAM)
     r = s.process(blank)
     assert r.state == TrackState.LOST and r.T_w_c is None and r.n_features == 0
     after = [s.process(dataclasses.replace(f, index=f.index + 1)) for f in frames[21:30]]

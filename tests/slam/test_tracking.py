@@ -3,6 +3,8 @@ TUM frame, and the tracker on rendered frames (static keypoints only)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -232,3 +234,75 @@ def test_dense_tracking_follows_the_rendered_camera():
     assert tr.dense_fraction > 0.5
     cells = tr._dynamic_cells(tr.last, (60, 80))
     assert cells[:, :20].mean() > 0.5 and not cells[:, 31:].any()  # the left third (213 px = 27 of 80 columns) + 24 px masked
+
+
+def _blanked(frames, lo: int, hi: int):
+    """The frames with the colour of frames ``lo..hi-1`` replaced by a uniform grey: a plain wall for ORB
+    (no keypoints), while the depth still sees the room's planes."""
+    return [dataclasses.replace(f, rgb=np.full_like(f.rgb, 120)) if lo <= i < hi else f for i, f in enumerate(frames)]
+
+
+@pytest.mark.parametrize("mode", ["off", "auto"])
+def test_dense_auto_tracks_textureless_frames_that_features_lose(mode):
+    """``dense = "auto"``: frames without a single keypoint (features fail) are tracked by the depth term
+    alone, against the renderer's poses; with ``"off"`` they are lost. Frames with features keep ORB-SLAM2's
+    tracking (method ``motion_model``)."""
+    frames = _blanked(scene.frames(24, "xyz"), 12, 16)
+    sys_ = System(CAM, Config(tracking=TrackingConfig(dense=mode)))
+    results = [sys_.process(f) for f in frames]
+    blank = results[12:16]
+    if mode == "off":
+        assert [r.state for r in blank] == [TrackState.LOST] * 4
+        return
+    assert [r.method for r in blank] == ["dense"] * 4 and all(r.n_features == 0 for r in blank)
+    assert [r.method for r in results[2:12]] == ["motion_model"] * 10
+    err = [np.linalg.norm(r.T_w_c[:3, 3] - f.T_w_c_gt[:3, 3]) for r, f in zip(results, frames)]
+    assert max(err) < 0.01, np.round(err, 4)
+    assert all(r.tracked for r in results[16:])
+
+
+def test_dense_auto_engages_only_on_weak_and_suspect_feature_poses():
+    """``_needs_dense`` in ``"auto"``: a failed frame always; a tracked one only with fewer than
+    ``dense_below_inliers`` inliers *and* a pose off the constant-velocity prediction by more than the
+    suspect thresholds (3 cm, 1 deg); ``"weak"`` re-tracks every frame with few inliers."""
+    tr = System(CAM, Config(tracking=TrackingConfig(dense="auto"))).tracker
+    fr = scene.frames(2, "xyz")[0]
+    f = make_slam_frame(fr, extract_features(fr.rgb[:, :, 0]))
+    tr.predicted_T_c_w = np.eye(4)
+
+    def needs(n, dt=0.0, deg=0.0, ok=True, mode="auto"):
+        tr.cfg = TrackingConfig(dense=mode)
+        tr.n_inliers = n
+        f.T_w_c = make_pose(so3_exp([0.0, np.radians(deg), 0.0]), [dt, 0.0, 0.0])
+        return tr._needs_dense(f, ok)
+
+    assert needs(0, ok=False) and needs(500, ok=False)
+    assert not needs(60) and not needs(60, 0.02, 0.9)  # few inliers, but on the prediction
+    assert needs(60, 0.04) and needs(60, 0.0, 1.5)  # few inliers and jumped
+    assert not needs(150, 0.2, 5.0)  # many inliers: the features are trusted
+    assert needs(60, mode="weak") and not needs(60, 0.2, 5.0, mode="off") and not needs(0, ok=False, mode="off")
+
+
+@pytest.mark.parametrize("new_point_depth", [0.0, 8.0])
+def test_keyframe_points_from_depth_up_to_new_point_depth(new_point_depth):
+    """A keyframe of a room 4-5 m deep (the rendered room's depth x 1.8): with ``new_point_depth = 0``
+    (ORB-SLAM2: close points, z < th_depth bf / fx = 3.05 m, then the closest far ones up to 100) it
+    gets 100 points; with 8 m every static keypoint with depth becomes a point, at the depth-image's
+    3D position."""
+    f0 = scene.frames(1, "xyz")[0]
+    far = dataclasses.replace(f0, depth=f0.depth * 1.8)
+    s = System(CAM, Config(tracking=TrackingConfig(new_point_depth=new_point_depth)))
+    assert s.close_depth == pytest.approx(4.0 * 400.0 / CAM.fx)
+    sf = make_slam_frame(far, extract_features(far.rgb[:, :, 0]))
+    sf.T_w_c = f0.T_w_c_gt
+    z = sf.depth
+    has = sf.static & np.isfinite(z)
+    assert np.nanmin(z[has]) > s.close_depth  # every keypoint is "far" for ORB-SLAM2
+    kf, new = s._new_keyframe(sf, far)
+    if new_point_depth == 0.0:
+        assert len(new) == 100 and np.all(z[kf.map_point_ids >= 0] <= np.sort(z[has])[99])
+    else:
+        assert len(new) == int((has & (z <= 8.0)).sum()) > 500
+    idx = np.flatnonzero(kf.map_point_ids >= 0)
+    expected = transform_points(f0.T_w_c_gt, sf.points_c[idx])
+    assert np.allclose(s.map.xyz[kf.map_point_ids[idx]], expected)

@@ -269,8 +269,8 @@ class LoopCloser:
     def _start_global_ba(self, mp, result: LoopResult) -> None:
         snap = take_snapshot(mp)
         fixed = {result.loop_kf_id}
-        cam, bf, it = self.camera, self.bf, self.config.global_ba_iterations
-        self.corrector.submit(_timed(lambda: run_global_ba(snap, fixed, cam, bf, it), "global_ba", result),
+        cam, bf, it, weak = self.camera, self.bf, self.config.global_ba_iterations, self.config.global_ba_min_observations
+        self.corrector.submit(_timed(lambda: run_global_ba(snap, fixed, cam, bf, it, weak), "global_ba", result),
                               ("global_ba", result))
 
     def wait(self, map) -> list[LoopResult]:  # noqa: A002 - the contract's name

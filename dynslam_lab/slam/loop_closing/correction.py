@@ -206,15 +206,21 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
                       stats={"edges": int(len(edges)), "keyframes": int(len(snap.ids))})
 
 
-def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf: float, iterations: int) -> Correction:
+def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf: float, iterations: int,
+                  min_observations: int = 0) -> Correction:
     """Bundle adjustment of every keyframe and point of the snapshot (ORB-SLAM2
-    ``RunGlobalBundleAdjustment``), the keyframes ``fixed_ids`` (and the map origin) held."""
+    ``RunGlobalBundleAdjustment``), the keyframes ``fixed_ids`` (and the map origin) held, and (ours)
+    every keyframe observing fewer than ``min_observations`` points: its pose is not determined by them
+    (a keyframe on a plain wall, tracked by depth, with a handful of points) and stays where the pose
+    graph put it."""
     alive_obs = np.isin(snap.obs_kf, snap.ids)
     o_kf, o_pt, o_kp = snap.obs_kf[alive_obs], snap.obs_pt[alive_obs], snap.obs_kp[alive_obs]
     if len(o_kf) == 0:
         return Correction(snap.ids, snap.T_w_c, snap.T_w_c.copy(), kind="global_ba")
-    kfs = {int(k): snap.keyframes[int(k)] for k in np.unique(o_kf)}
-    fixed = ({int(f) for f in fixed_ids} | {int(snap.ids[0])}) & set(kfs)
+    ks, counts = np.unique(o_kf, return_counts=True)
+    kfs = {int(k): snap.keyframes[int(k)] for k in ks}
+    weak = {int(k) for k, c in zip(ks.tolist(), counts.tolist()) if c < min_observations}
+    fixed = ({int(f) for f in fixed_ids} | {int(snap.ids[0])} | weak) & set(kfs)
     if not fixed:
         fixed = {min(kfs)}
     index = snap.index()
@@ -231,6 +237,7 @@ def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf
     return Correction(snap.ids, snap.T_w_c, T_new, point_ids=upts, xyz=res.points,
                       outliers=(o_kf[out], o_kp[out], o_pt[out]), kind="global_ba",
                       stats={"gba_points": int(len(upts)), "gba_keyframes": len(kfs), "gba_outliers": int(out.sum()),
+                             "gba_held_weak": len(weak),
                              "gba_cost_before": res.cost_before, "gba_cost_after": res.cost_after})
 
 
