@@ -43,14 +43,16 @@ For each new frame, with only the keypoints the screening stage judged static:
 **Dense depth term** (ours, ``dense``: docs/tracking.md "Dense depth term" has the
 measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
 its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
-prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` (default) only
+prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` only
 frames the features fail, or keep few inliers with a pose off the motion prediction (suspect), so plain
 walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
-ORB-SLAM2.
+ORB-SLAM2 and the default.
 
-**Far points** (ours, ``new_point_depth``): a keyframe makes a map point of every static keypoint with
-depth up to 8 m, not only the close ones: ORB-SLAM2 triangulates far points between keyframes, we do not
-(docs/tracking.md "Far points from depth").
+**Far points** (ours, ``new_point_depth``, 0 = off by default): a keyframe makes a map point of every
+static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
+keyframes, we do not (docs/tracking.md "Far points from depth"). ``new_point_depth = 8`` with
+``dense = "auto"`` tracks rooms with few features or far walls, but lets the tracker follow movers on
+dynamic scenes, hence off (docs/robustness.md "Tracking options and movers").
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
@@ -125,7 +127,7 @@ class TrackingConfig:
     kf_close_tracked: int = 100  # fewer tracked close points than this ...; ORB-SLAM2: 100
     kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
-    new_point_depth: float = 8.0  # m; a keyframe makes a map point of every static keypoint with depth below this (or below the close depth th_depth * bf / fx, whichever is farther), then far ones up to kf_new_points_min; ours: ORB-SLAM2 makes only close points from depth and triangulates far ones between keyframes, which we do not, so a room 3-5 m deep had ~100 points per keyframe and tracking ran out of points (docs/tracking.md "Far points from depth"); 0 = the close depth only (ORB-SLAM2)
+    new_point_depth: float = 0.0  # m (0 = off, the default: on dynamic scenes far points let tracking follow movers, docs/robustness.md "Tracking options and movers"; 8.0 for rooms with far walls); a keyframe makes a map point of every static keypoint with depth below this (or below the close depth th_depth * bf / fx, whichever is farther), then far ones up to kf_new_points_min; ours: ORB-SLAM2 makes only close points from depth and triangulates far ones between keyframes, which we do not, so a room 3-5 m deep had ~100 points per keyframe and tracking ran out of points (docs/tracking.md "Far points from depth"); 0 = the close depth only (ORB-SLAM2)
     suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
     suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
     suspect_trusted_inliers: int = 0  # a pose with at least this many inliers is never suspect (a tracker following a mover keeps few); 0 = off; ours, docs/tracking.md "Graceful failure"
@@ -137,7 +139,7 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense: str = "auto"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense: str = "off"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours

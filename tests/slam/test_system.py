@@ -52,7 +52,7 @@ def test_lost_on_blank_frame_then_relocalized():
     s = System(CAM, Config())
     for f in frames[:20]:
         assert s.process(f).tracked
-    # no texture and no depth (with depth alone the default dense term, tracking.dense = "auto", tracks it)
+    # no texture and no depth (with depth alone the dense term, tracking.dense = "auto", would track it)
     blank = Frame(20, frames[20].timestamp, np.full_like(frames[20].rgb, 120), np.zeros_like(frames[20].depth), CAM)
     r = s.process(blank)
     assert r.state == TrackState.LOST and r.T_w_c is None and r.n_features == 0
