@@ -300,7 +300,7 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
         total = int(use.sum())
         cand = labs[(counts >= config.segment_min_matches) & (total - counts >= config.segment_min_matches)]
         best, best_key, best_T, best_fit = None, None, None, None
-        e_T = _reprojection_px(T, X_w, uv, K) / sigma
+        e_T = None  # errors under T, needed by the room test only
         gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
         for lab, count in zip(cand, counts[np.isin(labs, cand)]):
             on = (labels == lab) & use
@@ -326,6 +326,8 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
             if dominant:  # evidence that the surface pulled T: the room fits its own pose clearly better, or
                 # somewhat better while the surface misses by twice the bound (a poorly constrained room's pose
                 # alone makes a static surface miss by less)
+                if e_T is None:
+                    e_T = _reprojection_px(T, X_w, uv, K) / sigma
                 gain = np.median(e_T[fit]) / max(np.median(e[fit]), 1e-9)
                 if not (gain >= config.dominant_gain or (gain >= config.dominant_gain_weak and r_on >= 2 * bound)):
                     continue
@@ -403,8 +405,7 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
             T = refine_pose(T, X[keep], q[keep], K, config.scales_px[-2:], sigma=sigma[keep])
     err = _reprojection_px(T, X, q, K)
     # when the room's pose was taken, the prediction followed the mover: it is no check
-    followed = room
-    if (err < config.inlier_px).sum() < config.min_inliers or not (followed or _correction_ok(T, T_pred, config)):
+    if (err < config.inlier_px).sum() < config.min_inliers or not (room or _correction_ok(T, T_pred, config)):
         return out
     out.T_c_w, out.source = T, "map"
     out.map_index[kp] = rows

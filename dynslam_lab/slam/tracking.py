@@ -649,8 +649,7 @@ class Tracker:
             return True
         if self.predicted_T_c_w is None or frame.T_w_c is None:
             return False
-        dt, dr = pose_distance(self.predicted_T_c_w @ frame.T_w_c)
-        return dt > cfg.suspect_translation or dr > cfg.suspect_rotation_deg
+        return self._off_prediction(*pose_distance(self.predicted_T_c_w @ frame.T_w_c))
 
     def _track_features(self, frame: SlamFrame) -> bool:
         """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""
@@ -673,9 +672,12 @@ class Tracker:
         """The last tracked pose landed implausibly far from the constant-velocity prediction (a camera
         does not accelerate by centimetres or degrees within a frame; tracking that latched onto a
         moving object does). Ours, for graceful failure (issue: failure is expensive)."""
-        dt, dr = self.motion_deviation
         if 0 < self.cfg.suspect_trusted_inliers <= self.n_inliers:
             return False
+        return self._off_prediction(*self.motion_deviation)
+
+    def _off_prediction(self, dt: float, dr: float) -> bool:
+        """A deviation ``(m, deg)`` from the constant-velocity prediction beyond the suspect thresholds."""
         return dt > self.cfg.suspect_translation or dr > self.cfg.suspect_rotation_deg
 
     def in_bad_stretch(self, frame_index: int) -> bool:
