@@ -16,6 +16,7 @@ docs/notebooks.md, run top to bottom, draw the figures they promise, and every s
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
@@ -79,7 +80,7 @@ def test_notebook_follows_the_standard(path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs_and_draws(path):
+def test_notebook_runs_and_draws(path, tmp_path):
     pytest.importorskip("jupyter_client")
     from dynslam_lab.viz.notebook_exec import count_images, execute_notebook, exercise_cells, sections, \
         substitute_solutions
@@ -90,7 +91,9 @@ def test_notebook_runs_and_draws(path):
     ex, chk = exercise_cells(blank), exercise_cells(blank, "check")
     after = [(f"blank exercise {k}", blank.cells[ex[k]].source + "\n" + blank.cells[chk[k]].source) for k in ids]
     after.append(("sliders", SLIDER_CHECK))
-    nb, extra = execute_notebook(nb, cwd=path.parent, timeout_per_cell=CELL_TIMEOUT, after=after)
+    # the notebooks' scratch folders (tempfile.mkdtemp) go into pytest's tmp_path, which pytest prunes
+    env = dict(os.environ, TMPDIR=str(tmp_path))
+    nb, extra = execute_notebook(nb, cwd=path.parent, timeout_per_cell=CELL_TIMEOUT, after=after, env=env)
     has_shared = SHARED_DATA.is_dir()
 
     # every cell shows exactly the images it promises (none where it promises none)
