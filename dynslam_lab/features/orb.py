@@ -54,7 +54,7 @@ class OrbConfig:
     subpixel_max_shift: float = 0.75  # a refinement moving a keypoint more than this (level px) is dropped (keeps the integer position); ours
     # The keypoint budget and the dynamic region (extract_features(region=...), docs/robustness.md "ORB budget"):
     truth_region_share: float = 0.0  # quota of a region known dynamic in the frame itself (the oracle's masks), as a fraction of its area's fair share (0 = outside only, DynaSLAM, Bescos et al. 2018; 1 = off)
-    prior_region_share: float = 1.0  # quota of the region a screener found dynamic on an earlier frame (fraction, as above; 1 = off, the default: docs/robustness.md); ours
+    prior_region_share: float = 0.25  # quota of the region a screener found dynamic on an earlier frame (fraction, as above; 1 = off; > 0 keeps keypoints on movers for the screener to judge: docs/robustness.md); ours
     prior_lag: int = 2  # the prior region of frame t is the screened region of frame t - prior_lag (frames; >= 1; 1 delays extraction until the previous frame is screened); ours
     prior_dilate_px: int = 16  # the prior region grows by this many pixels (movers move between frames); ours
 
@@ -258,29 +258,20 @@ def _keypoint_arrays(kps: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _budgeted(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, share: float, mask: np.ndarray | None) -> tuple[cv2.ORB, list]:
     """The keypoints kept when the region gets ``share`` of its fair share of the budget (see
     :func:`region_quotas`) and the rest of each level's quota goes to the cells outside it, spread
-    by their area outside the region. Candidates outside the region come from a detection masked to
-    them when the full detection has too few there (a textured mover takes OpenCV's candidate budget
-    too), so the static world gets its whole budget of candidates."""
+    by their area outside the region. Each side has its own detection (masked to it), so a textured
+    mover cannot take OpenCV's candidate budget either."""
     quotas = level_quotas(cfg)
     r, cover = region_quotas(region, cfg, share)
     outside = ~region if mask is None else (~region & (mask > 0))
-    n_out = int(quotas.sum() - r.sum())
-    if share > 0:
-        orb, kps = _detect(gray, cfg, cfg.fast_threshold)
-        if len(kps) < cfg.n_features:
-            orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
-        uv, _, _ = _keypoint_arrays(kps)
-        inside = _inside(region, uv)
-        allowed = _inside(mask > 0, uv) if mask is not None else np.ones(len(kps), bool)
-        ins = [kps[i] for i in np.flatnonzero(inside & allowed)]
-        outs = [kps[i] for i in np.flatnonzero(~inside & allowed)]
-    else:
-        orb, ins, outs = None, [], []
-    if len(outs) < cfg.oversample * n_out:  # too few candidates outside: detect there alone
-        m = outside.astype(np.uint8) * 255
-        orb, outs = _detect(gray, cfg, cfg.fast_threshold, m)
-        if len(outs) < n_out:
-            orb, outs = _detect(gray, cfg, cfg.min_fast_threshold, m)
+    # One detection per side at the lower FAST threshold (ORB-SLAM2's minThFAST): the candidates compete
+    # by Harris response inside each side's quota, and the threshold-20 pass (and its retry) would
+    # double the cost on the weak texture a textured mover leaves outside.
+    allowed = None if mask is None else (mask > 0).astype(np.uint8)
+    ins: list = []
+    if share > 0 and r.sum() > 0:
+        m_in = region.astype(np.uint8) * 255 if allowed is None else region.astype(np.uint8) * allowed * 255
+        orb, ins = _detect(gray, cfg, cfg.min_fast_threshold, m_in)
+    orb, outs = _detect(gray, cfg, cfg.min_fast_threshold, outside.astype(np.uint8) * 255)
     kept: list = []
     if ins and r.sum() > 0:
         uv, octave, response = _keypoint_arrays(ins)
