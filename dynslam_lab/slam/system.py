@@ -223,7 +223,7 @@ class System:
         elif prior is not None and prior.any():
             region, share = prior, orb.prior_region_share
             if orb.prior_dilate_px > 0:
-                k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * orb.prior_dilate_px + 1,) * 2)
+                k = np.ones((2 * orb.prior_dilate_px + 1,) * 2, np.uint8)  # a square: separable, ~0.3 ms (an ellipse: 8 ms)
                 region = cv2.dilate(prior.astype(np.uint8), k)
         feats = extract_features(frame.gray, orb, region=region, region_share=share)
         return feats, 1e3 * (time.perf_counter() - t0)

@@ -84,7 +84,7 @@ def test_the_prior_region_is_the_same_whatever_the_thread_timing(lag):
     for t in range(lag, len(frames)):
         x1, x2 = _box(t - lag)
         inside = lambda uv: (uv[:, 0] > x1 + 1) & (uv[:, 0] < x2 - 1) & (uv[:, 1] > 101) & (uv[:, 1] < 399)
-        # the region (the box grown by prior_dilate_px = 16 px) keeps at most SHARE of its area's share of 1000
+        # the region (the box grown by prior_dilate_px = 16 px, a square) keeps at most SHARE of its area's share of 1000
         bound = SHARE * (160 + 32) * (300 + 32) / (640 * 480) * 1000
         assert int(inside(plain[t].uv).sum()) <= bound + 2, t
         assert int(inside(off[t].uv).sum()) > 2.5 * bound, t
