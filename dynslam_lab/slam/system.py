@@ -236,9 +236,9 @@ class System:
     def _prior_index(self, frame: Frame) -> int | None:
         """The frame whose screened region is the prior of this frame's extraction (``index -
         orb.prior_lag``), or None when the extraction uses no prior (``orb.prior_region_share`` 1, no
-        screener, or a screener that knows the frame's own region)."""
+        screener, or a screener that knows the frame's own region: the oracle, ``orb.truth_region_share``)."""
         orb = self.config.orb
-        if self.screener is None or orb.prior_region_share >= 1.0 or self._truth_region():
+        if self.screener is None or orb.prior_region_share >= 1.0 or hasattr(self.screener, "known_region"):
             return None
         return int(frame.index) - orb.prior_lag
 
