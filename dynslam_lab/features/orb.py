@@ -22,6 +22,11 @@ that quota, the strongest corners first, and the quota a cell cannot fill is han
 remaining corners of the level by response. The same ORB object then computes the
 descriptors of the kept keypoints.
 
+With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
+``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
+Bescos et al. 2018) and the pixels outside get the rest, each side from its own detection masked to it
+(a textured mover would otherwise take OpenCV's candidates too); see docs/robustness.md, "ORB budget".
+
 The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
 """
 
