@@ -144,7 +144,7 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense: str = "auto"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); "weak" and "auto" only while the scene is judged static (static_scene_frames); ours, docs/tracking.md "Dense depth term"
+    dense: str = "auto"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); "weak" and "auto" only while the scene is judged static (static_scene_frames) and on frames with few keypoints (dense_max_keypoints); ours, docs/tracking.md "Dense depth term"
     static_scene_frames: int = 30  # frames: the far points (new_point_depth) and the dense term ("weak", "auto") engage only when none of the last this many frames had more than static_scene_max_dynamic of its keypoints judged dynamic (0 = always engaged); ours: on dynamic scenes they let the tracker follow a mover, docs/robustness.md "Tracking options and movers"
     dense_max_keypoints: int = 500  # "weak" and "auto" engage only on frames with fewer keypoints with depth than this (0 = any frame): a plain wall gives ORB 5-200 keypoints (loop_flat), a mover that takes most of ORB's budget leaves 700-850 that fail to match (random_123, no filter); ours, docs/robustness.md "Tracking options and movers"
     static_scene_max_dynamic: float = 0.02  # fraction of a frame's keypoints judged dynamic above which the frame counts as dynamic (static_scene_frames); ours
@@ -667,7 +667,9 @@ class Tracker:
         ``"weak"``: failed or fewer than ``dense_below_inliers`` inliers; ``"auto"``: failed, or fewer
         inliers *and* a pose the graceful-failure guard calls suspect (farther than ``suspect_translation``
         / ``suspect_rotation_deg`` from the constant-velocity prediction: a few features on a plain wall or
-        a repeated pattern that jumped). Ours, docs/tracking.md "Dense depth term, automatic"."""
+        a repeated pattern that jumped). Neither while the scene is not judged static (:meth:`scene_static`) nor
+        on a frame with ``dense_max_keypoints`` keypoints with depth or more. Ours, docs/tracking.md "Dense
+        depth term, automatic"."""
         cfg = self.cfg
         if cfg.dense in ("off", "always") or not self.scene_static(frame.index):
             return False
