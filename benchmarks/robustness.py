@@ -33,8 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--filters", default=None, help="comma-separated filter labels (default all)")
     ap.add_argument("--no-loop", action="store_true", help="without loop closing")
     ap.add_argument("--fresh", action="store_true", help="rerun finished runs instead of resuming")
+    ap.add_argument("--config", default=None, help="a TOML file of parameters for every run (e.g. [orb] truth_region_share = 1.0)")
     args = ap.parse_args(argv)
 
+    from dynslam_lab.config import Config, load_config
     from dynslam_lab.datasets import stress
     from dynslam_lab.experiments.robustness import run_robustness, synthetic_specs
 
@@ -47,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['sequence']:<20} {r['filter']:<14} ATE {r['ate_rmse_m']:.4f} m  P {r['precision']:.3f} R {r['recall']:.3f}  "
               f"lost {r['lost']} loops {r['loops']}  {r['ms_per_frame']:.0f} ms/frame", flush=True)
 
-    run_robustness(specs, args.out, onnx_model=args.model, filters=only, loop_closing=not args.no_loop,
+    config = load_config(args.config, Config()) if args.config else None
+    run_robustness(specs, args.out, config=config, onnx_model=args.model, filters=only, loop_closing=not args.no_loop,
                    resume=not args.fresh, on_run=line, max_frames=args.max_frames)
     print((Path(args.out) / "robustness.md").read_text())
     print(f"wrote {args.out}/robustness.csv, robustness.md, robustness.png ({time.time() - t0:.0f} s)")

@@ -59,6 +59,12 @@ class OracleScreener:
     def reset(self) -> None:
         """Nothing to forget."""
 
+    def known_region(self, frame) -> np.ndarray | None:
+        """``(H, W)`` bool pixels known dynamic in ``frame`` before any keypoint exists (the moving
+        instances), or None without instance masks: the SLAM system gives the keypoint budget to
+        the rest of the image (``OrbConfig.truth_region_share``)."""
+        return moving_mask(frame)
+
     def screen(self, frame, uv: np.ndarray, detections=None) -> KeypointTable:
         uv = check_uv(uv)
         t0 = time.perf_counter()

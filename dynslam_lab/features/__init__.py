@@ -13,13 +13,14 @@ from .matching import (
     orientation_consistent,
     search_by_projection,
 )
-from .orb import Features, OrbConfig, extract_features, level_quotas, scale_factors
+from .orb import Features, OrbConfig, extract_features, level_quotas, region_quotas, scale_factors
 
 __all__ = [
     "Features",
     "OrbConfig",
     "extract_features",
     "level_quotas",
+    "region_quotas",
     "scale_factors",
     "TH_LOW",
     "TH_HIGH",

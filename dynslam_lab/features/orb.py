@@ -22,6 +22,11 @@ that quota, the strongest corners first, and the quota a cell cannot fill is han
 remaining corners of the level by response. The same ORB object then computes the
 descriptors of the kept keypoints.
 
+With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
+``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
+Bescos et al. 2018) and the pixels outside get the rest, each side from its own detection masked to it
+(a textured mover would otherwise take OpenCV's candidates too); see docs/robustness.md, "ORB budget".
+
 The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
 """
 
@@ -33,7 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["OrbConfig", "Features", "extract_features", "refine_subpixel", "level_quotas", "scale_factors"]
+__all__ = ["OrbConfig", "Features", "extract_features", "refine_subpixel", "level_quotas", "region_quotas", "scale_factors"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +57,11 @@ class OrbConfig:
     oversample: float = 2.5  # corners asked from OpenCV per kept keypoint (ours; bucketing needs spare)
     subpixel_levels: int = 0  # refine keypoints of levels < this with cv2.cornerSubPix on their level image (0 = off); ours (ORB-SLAM2 keeps integer level pixels)
     subpixel_max_shift: float = 0.75  # a refinement moving a keypoint more than this (level px) is dropped (keeps the integer position); ours
+    # The keypoint budget and the dynamic region (extract_features(region=...), docs/robustness.md "ORB budget"):
+    truth_region_share: float = 0.0  # quota of a region known dynamic in the frame itself (the oracle's masks), as a fraction of its area's fair share (0 = outside only, DynaSLAM, Bescos et al. 2018; 1 = off)
+    prior_region_share: float = 0.25  # quota of the region a screener found dynamic on an earlier frame (fraction, as above; 1 = off; > 0 keeps keypoints on movers for the screener to judge: docs/robustness.md); ours
+    prior_lag: int = 2  # the prior region of frame t is the screened region of frame t - prior_lag (frames; >= 1; 1 delays extraction until the previous frame is screened); ours
+    prior_dilate_px: int = 16  # the prior region grows by this many pixels (movers move between frames); ours
 
     def __post_init__(self) -> None:
         if self.n_features < 1:
@@ -77,6 +87,13 @@ class OrbConfig:
             raise ValueError(f"OrbConfig.subpixel_levels must be in [0, n_levels], got {self.subpixel_levels}")
         if not self.subpixel_max_shift > 0:
             raise ValueError(f"OrbConfig.subpixel_max_shift must be > 0 (level px), got {self.subpixel_max_shift}")
+        for name in ("truth_region_share", "prior_region_share"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"OrbConfig.{name} must be in [0, 1] (fraction of the fair share), got {getattr(self, name)}")
+        if self.prior_lag < 1:
+            raise ValueError(f"OrbConfig.prior_lag must be >= 1 frame, got {self.prior_lag}")
+        if self.prior_dilate_px < 0:
+            raise ValueError(f"OrbConfig.prior_dilate_px must be >= 0 pixels, got {self.prior_dilate_px}")
 
 
 @dataclass
@@ -159,29 +176,42 @@ def _orb_object(cfg: OrbConfig, fast_threshold: int) -> cv2.ORB:
     return orb
 
 
-def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int) -> tuple[cv2.ORB, list]:
+def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int, mask: np.ndarray | None = None) -> tuple[cv2.ORB, list]:
     orb = _orb_object(cfg, fast_threshold)
-    return orb, list(orb.detect(gray, None))
+    return orb, list(orb.detect(gray, mask))
 
 
-def _bucket(uv: np.ndarray, octave: np.ndarray, response: np.ndarray, shape: tuple[int, int], cfg: OrbConfig) -> np.ndarray:
-    """Indices of the keypoints kept by per-level quotas and per-cell shares (vectorised)."""
+def _cells(uv: np.ndarray, shape: tuple[int, int], cfg: OrbConfig) -> np.ndarray:
+    """``(N,)`` grid cell (row-major, ``grid_rows x grid_cols`` over the level-0 image) of each keypoint."""
     h, w = shape
-    quotas = level_quotas(cfg)
-    n_cells = cfg.grid_cols * cfg.grid_rows
     col = np.clip((uv[:, 0] * cfg.grid_cols / w).astype(np.int64), 0, cfg.grid_cols - 1)
     row = np.clip((uv[:, 1] * cfg.grid_rows / h).astype(np.int64), 0, cfg.grid_rows - 1)
-    cell = octave * n_cells + row * cfg.grid_cols + col
+    return row * cfg.grid_cols + col
+
+
+def _bucket(uv: np.ndarray, octave: np.ndarray, response: np.ndarray, shape: tuple[int, int], cfg: OrbConfig,
+            quotas: np.ndarray | None = None, shares: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the keypoints kept by per-level quotas and per-cell shares (vectorised).
+
+    ``quotas`` ``(n_levels,)`` (default :func:`level_quotas`) and ``shares`` ``(n_levels, n_cells)``
+    first-pass shares per level and cell (default: the level's quota over the cells, at least one)."""
+    quotas = level_quotas(cfg) if quotas is None else quotas
+    n_cells = cfg.grid_cols * cfg.grid_rows
+    lvl = np.clip(octave, 0, cfg.n_levels - 1)
+    cell_xy = _cells(uv, shape, cfg)
+    cell = octave * n_cells + cell_xy
     # Rank of each keypoint inside its (level, cell), strongest first.
     order = np.lexsort((-response, cell))
     sorted_cell = cell[order]
     start = np.searchsorted(sorted_cell, sorted_cell, side="left")
     rank = np.empty(len(uv), dtype=np.int64)
     rank[order] = np.arange(len(uv)) - start
-    # Share of a level's quota per cell: quota / cells (at least one per cell).
-    share = np.maximum(np.ceil(quotas / n_cells), 1).astype(np.int64)
-    lvl = np.clip(octave, 0, cfg.n_levels - 1)
-    first_pass = rank < share[lvl]
+    if shares is None:
+        # Share of a level's quota per cell: quota / cells (at least one per cell).
+        share = np.maximum(np.ceil(quotas / n_cells), 1).astype(np.int64)
+        first_pass = rank < share[lvl]
+    else:
+        first_pass = rank < shares[lvl, cell_xy]
     # Per level: keep the first-pass winners by response up to the quota, then fill the
     # rest of the quota with the strongest remaining corners (cells with spare corners).
     priority = np.where(first_pass, 0, 1)
@@ -192,7 +222,77 @@ def _bucket(uv: np.ndarray, octave: np.ndarray, response: np.ndarray, shape: tup
     return np.sort(order2[keep_sorted])
 
 
-def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.ndarray | None = None) -> Features:
+def region_quotas(region: np.ndarray, cfg: OrbConfig, share: float) -> tuple[np.ndarray, np.ndarray]:
+    """How the keypoint budget is split with a dynamic ``region`` (``(H, W)`` bool).
+
+    A region covering the fraction ``a`` of the image would get ``a`` of each level's quota ``n_s``
+    (the fair share of its area); it gets ``share`` of that, ``r_s = round(share a n_s)``, and the
+    rest of the level's quota goes to the pixels outside. Returns ``(r, cover)``: ``(n_levels,)`` the
+    region's quotas and ``(n_cells,)`` the fraction of each grid cell inside the region (row-major).
+    """
+    cover = cv2.resize(np.asarray(region, np.float32), (cfg.grid_cols, cfg.grid_rows), interpolation=cv2.INTER_AREA)
+    cover = np.clip(cover.reshape(-1).astype(np.float64), 0.0, 1.0)
+    r = np.round(share * float(cover.mean()) * level_quotas(cfg)).astype(np.int64)
+    return r, cover
+
+
+def _cell_shares(quotas: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``(n_levels, n_cells)`` first-pass shares: each level's quota spread over the cells in
+    proportion to ``weight`` (the cell's area that takes part), rounded up (0 where the weight is 0)."""
+    total = float(weight.sum())
+    if total <= 0:
+        return np.zeros((len(quotas), len(weight)), np.int64)
+    return np.ceil(quotas[:, None] * weight[None, :] / total).astype(np.int64)
+
+
+def _inside(region: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: keypoint pixel (nearest integer) inside ``region``."""
+    h, w = region.shape
+    ui = np.clip(np.round(uv[:, 0]).astype(int), 0, w - 1)
+    vi = np.clip(np.round(uv[:, 1]).astype(int), 0, h - 1)
+    return region[vi, ui]
+
+
+def _keypoint_arrays(kps: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    uv = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
+    octave = np.array([k.octave for k in kps], dtype=np.int64)
+    response = np.array([k.response for k in kps], dtype=np.float64)
+    return uv, octave, response
+
+
+def _budgeted(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, share: float, mask: np.ndarray | None) -> tuple[cv2.ORB, list]:
+    """The keypoints kept when the region gets ``share`` of its fair share of the budget (see
+    :func:`region_quotas`) and the rest of each level's quota goes to the cells outside it, spread
+    by their area outside the region. Each side has its own detection (masked to it), so a textured
+    mover cannot take OpenCV's candidate budget either."""
+    quotas = level_quotas(cfg)
+    r, cover = region_quotas(region, cfg, share)
+    outside = ~region if mask is None else (~region & (mask > 0))
+    # One detection per side at the lower FAST threshold (ORB-SLAM2's minThFAST): the candidates compete
+    # by Harris response inside each side's quota, and the threshold-20 pass (and its retry) would
+    # double the cost on the weak texture a textured mover leaves outside.
+    allowed = None if mask is None else (mask > 0).astype(np.uint8)
+    ins: list = []
+    if share > 0 and r.sum() > 0:
+        m_in = region.astype(np.uint8) * 255 if allowed is None else region.astype(np.uint8) * allowed * 255
+        orb, ins = _detect(gray, cfg, cfg.min_fast_threshold, m_in)
+    orb, outs = _detect(gray, cfg, cfg.min_fast_threshold, outside.astype(np.uint8) * 255)
+    kept: list = []
+    if ins and r.sum() > 0:
+        uv, octave, response = _keypoint_arrays(ins)
+        keep = _bucket(uv, octave, response, gray.shape, cfg, r, _cell_shares(r, cover))
+        kept = [ins[i] for i in keep]
+    if outs:
+        lvl = np.clip(np.array([k.octave for k in kept], np.int64), 0, cfg.n_levels - 1)
+        rest = quotas - np.bincount(lvl, minlength=cfg.n_levels)[: cfg.n_levels]
+        uv, octave, response = _keypoint_arrays(outs)
+        keep = _bucket(uv, octave, response, gray.shape, cfg, rest, _cell_shares(rest, 1.0 - cover))
+        kept += [outs[i] for i in keep]
+    return orb, kept
+
+
+def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.ndarray | None = None,
+                     region: np.ndarray | None = None, region_share: float = 0.0) -> Features:
     """Extract ORB features spread over the image and the scale pyramid.
 
     Parameters
@@ -200,6 +300,10 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
     gray : ``(H, W)`` uint8 grey image.
     cfg : extraction parameters.
     mask : optional ``(H, W)`` bool/uint8; features only where non-zero.
+    region : optional ``(H, W)`` bool/uint8 pixels known or believed dynamic (non-zero): they get
+        ``region_share`` of their area's fair share of each level's quota, the pixels outside the
+        rest (:func:`region_quotas`; 0 = features outside the region only, as DynaSLAM, Bescos et
+        al. 2018). None, an empty region or ``region_share`` 1: the plain extraction.
 
     Returns
     -------
@@ -221,26 +325,37 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
     min_side = 2 * cfg.edge_threshold + 1
     if gray.shape[0] < min_side or gray.shape[1] < min_side:
         raise ValueError(f"extract_features: image {gray.shape} smaller than {min_side} px (edge_threshold)")
-    orb, kps = _detect(gray, cfg, cfg.fast_threshold)
-    if len(kps) < cfg.n_features:
-        # Low texture: redo the detection with the lower FAST threshold (ORB-SLAM2 minThFAST).
-        orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != gray.shape:
             raise ValueError(f"extract_features: mask shape {mask.shape} != image shape {gray.shape}")
-    if not kps:
-        return Features.empty()
-    uv = np.array([k.pt for k in kps], dtype=np.float32)
-    octave = np.array([k.octave for k in kps], dtype=np.int64)
-    response = np.array([k.response for k in kps], dtype=np.float64)
-    idx = np.arange(len(kps))
-    if mask is not None:
-        ui = np.clip(np.round(uv[:, 0]).astype(int), 0, gray.shape[1] - 1)
-        vi = np.clip(np.round(uv[:, 1]).astype(int), 0, gray.shape[0] - 1)
-        idx = idx[mask[vi, ui] > 0]
-    keep = idx[_bucket(uv[idx], octave[idx], response[idx], gray.shape, cfg)]
-    kept, desc = orb.compute(gray, [kps[i] for i in keep])
+    if region is not None:
+        region = np.asarray(region)
+        if region.shape != gray.shape:
+            raise ValueError(f"extract_features: region shape {region.shape} != image shape {gray.shape}")
+        if not 0.0 <= float(region_share) <= 1.0:
+            raise ValueError(f"extract_features: region_share must be in [0, 1], got {region_share}")
+        region = region > 0
+        if region_share >= 1.0 or not region.any():
+            region = None
+    if region is not None:
+        orb, kept = _budgeted(gray, cfg, region, float(region_share), mask)
+        if not kept:
+            return Features.empty()
+    else:
+        orb, kps = _detect(gray, cfg, cfg.fast_threshold)
+        if len(kps) < cfg.n_features:
+            # Low texture: redo the detection with the lower FAST threshold (ORB-SLAM2 minThFAST).
+            orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
+        if not kps:
+            return Features.empty()
+        uv, octave, response = _keypoint_arrays(kps)
+        idx = np.arange(len(kps))
+        if mask is not None:
+            idx = idx[_inside(mask > 0, uv)]
+        keep = idx[_bucket(uv[idx], octave[idx], response[idx], gray.shape, cfg)]
+        kept = [kps[i] for i in keep]
+    kept, desc = orb.compute(gray, kept)
     if desc is None or not kept:
         return Features.empty()
     uv = np.array([k.pt for k in kept], dtype=np.float32)

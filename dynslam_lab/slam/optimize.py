@@ -68,6 +68,7 @@ The same problems with scipy's general ``least_squares`` are in :mod:`.scipy_ref
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -267,18 +268,97 @@ def pose_observation_chi2(X_c: np.ndarray, obs: Observations, camera: PinholeCam
     return chi2, bad
 
 
-def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
-                   bf: float, delta2: float | None, dense=None) -> tuple[float, tuple]:
+def _rotation_step(omega: np.ndarray) -> np.ndarray:
+    """``Exp(omega)`` of one rotation vector ``(3,)``: :func:`_rodrigues` in scalar arithmetic (the LM
+    step of motion-only BA takes one per trial, where numpy's per-call overhead would dominate)."""
+    wx, wy, wz = float(omega[0]), float(omega[1]), float(omega[2])
+    th2 = wx * wx + wy * wy + wz * wz
+    if th2 < 1e-16:
+        a, b = 1.0, 0.5
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return np.array([
+        [1.0 - b * (wy * wy + wz * wz), b * wx * wy - a * wz, b * wx * wz + a * wy],
+        [b * wx * wy + a * wz, 1.0 - b * (wx * wx + wz * wz), b * wy * wz - a * wx],
+        [b * wx * wz - a * wy, b * wy * wz + a * wx, 1.0 - b * (wx * wx + wy * wy)],
+    ])
+
+
+class _PoseTerms:
+    """The observations of motion-only BA with what does not depend on the pose computed once:
+    the measurements, ``1 / sigma``, and the third row's weight and measurement (``1 / sigma`` and
+    ``u_R``, or ``1 / sigma_z`` and ``z`` for the metric depth row; zero without depth). The residuals
+    and Jacobian are those of :func:`_pose_residuals` and :func:`_pose_point_jacobian` (tested equal);
+    the LM loop evaluates them several times per iteration, so the constant parts are not redone."""
+
+    __slots__ = ("X", "mu", "mv", "inv_s", "w3", "m3", "metric", "fx", "fy", "cx", "cy", "bf")
+
+    def __init__(self, X_w: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> None:
+        self.X = np.ascontiguousarray(X_w, float)
+        self.mu, self.mv = obs.uv[:, 0], obs.uv[:, 1]
+        self.inv_s = 1.0 / obs.sigma
+        has_d = np.isfinite(obs.ur)
+        self.metric = obs.z_sigma is not None
+        if self.metric:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self.w3 = np.where(has_d, 1.0 / obs.z_sigma, 0.0)
+            self.m3 = np.where(has_d, obs.z, 0.0)
+        else:
+            self.w3 = np.where(has_d, self.inv_s, 0.0)
+            self.m3 = np.where(has_d, obs.ur, 0.0)
+        self.fx, self.fy, self.cx, self.cy, self.bf = camera.fx, camera.fy, camera.cx, camera.cy, float(bf)
+
+    def subset(self, keep: np.ndarray) -> "_PoseTerms":
+        out = object.__new__(_PoseTerms)
+        for name in ("X", "mu", "mv", "inv_s", "w3", "m3"):
+            setattr(out, name, getattr(self, name)[keep])
+        out.metric, out.fx, out.fy, out.cx, out.cy, out.bf = self.metric, self.fx, self.fy, self.cx, self.cy, self.bf
+        return out
+
+    def residuals(self, X_c: np.ndarray) -> np.ndarray:
+        """Whitened residuals ``(K, 3)`` at the camera points ``X_c``."""
+        iz = 1.0 / X_c[:, 2]
+        r = np.empty((len(X_c), 3))
+        pu = self.fx * X_c[:, 0] * iz + self.cx
+        r[:, 0] = (pu - self.mu) * self.inv_s
+        r[:, 1] = (self.fy * X_c[:, 1] * iz + self.cy - self.mv) * self.inv_s
+        if self.metric:
+            r[:, 2] = (X_c[:, 2] - self.m3) * self.w3
+        else:
+            r[:, 2] = (pu - self.bf * iz - self.m3) * self.w3
+        return r
+
+    def jacobian(self, X_c: np.ndarray, RX: np.ndarray) -> np.ndarray:
+        """``(3K, 6)`` Jacobian of :meth:`residuals` in the pose step ``(omega, tau)``."""
+        K = len(X_c)
+        iz = 1.0 / X_c[:, 2]
+        Jp = np.zeros((K, 3, 3))
+        a = self.fx * iz
+        c = -self.fx * X_c[:, 0] * iz * iz
+        Jp[:, 0, 0] = a * self.inv_s
+        Jp[:, 0, 2] = c * self.inv_s
+        Jp[:, 1, 1] = self.fy * iz * self.inv_s
+        Jp[:, 1, 2] = -self.fy * X_c[:, 1] * iz * iz * self.inv_s
+        if self.metric:
+            Jp[:, 2, 2] = self.w3
+        else:
+            Jp[:, 2, 0] = a * self.w3
+            Jp[:, 2, 2] = (c + self.bf * iz * iz) * self.w3
+        return _pose_columns(Jp, RX).reshape(-1, 6)
+
+
+def _evaluate_pose(R: np.ndarray, t: np.ndarray, terms: _PoseTerms, delta2: float | None, dense=None) -> tuple[float, tuple]:
     """Robust cost of the pose ``(R, t)`` and what its linearisation needs (points behind the camera
     left out); with ``dense`` (a :class:`~.depth_alignment.DenseTerm`) its point-to-plane residuals
     are added, each point it cannot associate costing as much as one at the association gate (so
     that losing points never lowers the cost)."""
-    RX = X_w @ R.T
+    RX = terms.X @ R.T
     X_c = RX + t
     front = X_c[:, 2] > _MIN_DEPTH
     if not front.all():
-        RX, X_c, obs = RX[front], X_c[front], obs.subset(front)
-    r, _ = _pose_residuals(X_c, obs, camera, bf)
+        RX, X_c, terms = RX[front], X_c[front], terms.subset(front)
+    r = terms.residuals(X_c)
     chi2 = np.einsum("ij,ij->i", r, r)
     cost = float(huber_cost(chi2, delta2).sum())
     dense_state = None
@@ -286,31 +366,38 @@ def _evaluate_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observati
         e, Jd, unmatched = dense.residuals(R, t)
         cost += float(huber_cost(e * e, delta2).sum()) + float(huber_cost(unmatched, delta2).sum())
         dense_state = (e, Jd, huber_weight(e * e, delta2))
-    return cost, (RX, X_c, obs, r, huber_weight(chi2, delta2), dense_state)
+    return cost, (RX, X_c, terms, r, huber_weight(chi2, delta2), dense_state)
 
 
 def _lm_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float,
              delta2: float | None, iterations: int, dense=None) -> tuple[np.ndarray, np.ndarray, float]:
     """Levenberg-Marquardt on one pose ``T_c_w = (R, t)`` (robust kernel ``delta2`` or None; optional
     dense term, :func:`_evaluate_pose`); returns ``(R, t, cost)``."""
+    return _lm_pose_terms(R, t, _PoseTerms(X_w, obs, camera, bf), delta2, iterations, dense)
+
+
+def _lm_pose_terms(R: np.ndarray, t: np.ndarray, terms: _PoseTerms, delta2: float | None, iterations: int,
+                   dense=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`_lm_pose` on observations already gathered in a :class:`_PoseTerms`."""
     lam = 1e-4
-    cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, X_w, obs, camera, bf, delta2, dense)
+    cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, terms, delta2, dense)
     for _ in range(iterations):
-        J = _pose_columns(_pose_point_jacobian(X_c, o, camera, bf), RX).reshape(-1, 6)
-        w3 = np.repeat(w, 3)
-        H = J.T @ (J * w3[:, None])
-        g = J.T @ (w3 * r.ravel())
+        J = o.jacobian(X_c, RX)
+        Jw = J * np.repeat(w, 3)[:, None]
+        H = J.T @ Jw
+        g = Jw.T @ r.ravel()
         if ds is not None:
             e, Jd, wd = ds
             H += Jd.T @ (Jd * wd[:, None])
             g += Jd.T @ (wd * e)
+        diag = np.diag(H)
         while True:
             try:
-                dx = -np.linalg.solve(H + np.diag(lam * np.diag(H) + 1e-12), g)
+                dx = -np.linalg.solve(H + np.diag(lam * diag + 1e-12), g)
             except np.linalg.LinAlgError:
                 dx = np.zeros(6)
-            R_new, t_new = _rodrigues(dx[:3]) @ R, t + dx[3:]
-            new, state = _evaluate_pose(R_new, t_new, X_w, obs, camera, bf, delta2, dense)
+            R_new, t_new = _rotation_step(dx[:3]) @ R, t + dx[3:]
+            new, state = _evaluate_pose(R_new, t_new, terms, delta2, dense)
             if new <= cost or lam > 1e8:
                 break
             lam *= 10.0
@@ -360,13 +447,18 @@ def optimize_pose(
     R = nearest_rotation(np.asarray(T_c_w, float)[:3, :3])
     t = np.asarray(T_c_w, float)[:3, 3].copy()
     outlier = np.zeros(len(X_w), bool)
+    terms = _PoseTerms(X_w, obs, camera, bf)
+    limit = np.where(terms.w3 > 0, CHI2_3DOF, CHI2_2DOF)  # chi^2 test by degrees of freedom (depth or not)
     for rnd in range(rounds):
         use = ~outlier
         if use.sum() < 3 and dense is None:
             break
         delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
-        R, t, _ = _lm_pose(R, t, X_w[use], obs.subset(use), camera, bf, delta2, max_iterations, dense)
-        _, outlier = pose_observation_chi2(X_w @ R.T + t, obs, camera, bf)
+        R, t, _ = _lm_pose_terms(R, t, terms if use.all() else terms.subset(use), delta2, max_iterations, dense)
+        X_c = X_w @ R.T + t  # every observation classified again (pose_observation_chi2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = terms.residuals(X_c)
+        outlier = ~(np.einsum("ij,ij->i", r, r) <= limit) | ~(X_c[:, 2] > 0)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
     return T, outlier

@@ -49,11 +49,12 @@ __all__ = ["System", "FrameResult"]
 @dataclass
 class _Prepared:
     """What :meth:`System.prepare` started for one frame ahead of :meth:`System.process`: its ORB
-    extraction (a future of ``(features, ms)``) and its detection (a future of ``(detections, ms)``,
-    None without a detector)."""
+    extraction (a future of ``(features, ms)``; None while it waits for the prior region of an earlier
+    frame, see :meth:`System._prior_index`) and its detection (a future of ``(detections, ms)``, None
+    without a detector)."""
 
     frame: Frame
-    features: Future
+    features: Future | None
     detection: Future | None
 
     def cancel(self) -> None:
@@ -166,7 +167,11 @@ class System:
         self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
         self._pools: dict[str, ThreadPoolExecutor] = {}  # one-thread workers: "detect" (beside ORB), "orb" (ahead)
         self._prepared: dict[int, _Prepared] = {}  # frame index -> work started ahead by prepare()
-        self._lock = threading.Lock()  # prepare() runs in the reader thread: guards the two above
+        # The screened regions of the last frames (frame index -> (H, W) bool or None), the prior of the
+        # extraction of frame index + orb.prior_lag, and the index of the last frame process() began.
+        self._regions: dict[int, np.ndarray | None] = {}
+        self._started = -(2**62)
+        self._lock = threading.Lock()  # prepare() runs in the reader thread: guards the four above
 
     def effective_config(self):
         """The configuration every stage actually runs with: :attr:`config` with the detection,
@@ -203,11 +208,62 @@ class System:
             return None
         return self._worker("detect").submit(self._detect, frame)
 
-    def _extract(self, frame: Frame) -> tuple[Features, float]:
-        """ORB features of one frame, and the extraction's time (ms; in whichever thread runs it)."""
+    def _extract(self, frame: Frame, prior: np.ndarray | None = None) -> tuple[Features, float]:
+        """ORB features of one frame, and the extraction's time (ms; in whichever thread runs it).
+
+        The keypoint budget leaves the dynamic region (docs/robustness.md, "ORB budget"): the region
+        the screener knows in the frame itself (the oracle's masks, ``orb.truth_region_share``), else
+        ``prior``, the region screened on frame ``index - orb.prior_lag``, grown by
+        ``orb.prior_dilate_px`` (``orb.prior_region_share``)."""
         t0 = time.perf_counter()
-        feats = extract_features(frame.gray, self.config.orb)
+        orb = self.config.orb
+        region, share = None, 1.0
+        if self._truth_region():
+            region, share = self.screener.known_region(frame), orb.truth_region_share
+        elif prior is not None and prior.any():
+            region, share = prior, orb.prior_region_share
+            if orb.prior_dilate_px > 0:
+                k = np.ones((2 * orb.prior_dilate_px + 1,) * 2, np.uint8)  # a square: separable, ~0.3 ms (an ellipse: 8 ms)
+                region = cv2.dilate(prior.astype(np.uint8), k)
+        feats = extract_features(frame.gray, orb, region=region, region_share=share)
         return feats, 1e3 * (time.perf_counter() - t0)
+
+    def _truth_region(self) -> bool:
+        """Whether the screener knows each frame's dynamic pixels before extraction (the oracle) and
+        the budget leaves them (``orb.truth_region_share < 1``)."""
+        return self.config.orb.truth_region_share < 1.0 and hasattr(self.screener, "known_region")
+
+    def _prior_index(self, frame: Frame) -> int | None:
+        """The frame whose screened region is the prior of this frame's extraction (``index -
+        orb.prior_lag``), or None when the extraction uses no prior (``orb.prior_region_share`` 1, no
+        screener, or a screener that knows the frame's own region: the oracle, ``orb.truth_region_share``)."""
+        orb = self.config.orb
+        if self.screener is None or orb.prior_region_share >= 1.0 or hasattr(self.screener, "known_region"):
+            return None
+        return int(frame.index) - orb.prior_lag
+
+    def _prior(self, k: int) -> tuple[bool, np.ndarray | None]:
+        """``(resolved, region)`` of frame ``k`` (caller holds the lock): resolved once the frame was
+        screened, or once a later frame began (a frame skipped, lost or failed before screening gives
+        no prior). Which region an extraction gets thus depends on the order of the frames only, never
+        on thread timing."""
+        if k in self._regions:
+            return True, self._regions[k]
+        return k < self._started, None
+
+    def _start_waiting(self) -> None:
+        """Start the extractions :meth:`prepare` held back whose prior region is now resolved (in
+        frame order: the ORB worker runs them in that order)."""
+        pool = self._worker("orb")  # before the lock: _worker takes it
+        with self._lock:
+            for i in sorted(self._prepared):
+                prep = self._prepared[i]
+                if prep.features is not None:
+                    continue
+                resolved, region = self._prior(self._prior_index(prep.frame))
+                if not resolved:
+                    break  # the later frames need later regions
+                prep.features = pool.submit(self._extract, prep.frame, region)
 
     def prepare(self, frame: Frame) -> None:
         """Start ahead what :meth:`process` needs from the images alone: the ORB extraction in the
@@ -217,10 +273,18 @@ class System:
         while frame ``t`` is tracked (OpenCV's ORB and onnxruntime release the GIL: they use the
         second core). :meth:`process` of this same frame object then waits for that work instead of
         redoing it; the results are identical (extraction and detection depend on the frame only).
-        An extraction or detection error is raised by :meth:`process`, for that frame."""
-        prep = _Prepared(frame, self._worker("orb").submit(self._extract, frame), self._submit_detection(frame))
+        An extraction or detection error is raised by :meth:`process`, for that frame. With a prior
+        region (``orb.prior_region_share < 1``) the extraction of frame ``t`` starts once frame ``t -
+        orb.prior_lag`` is screened (:meth:`_prior`)."""
+        pool = self._worker("orb")
+        prep = _Prepared(frame, None, self._submit_detection(frame))
+        k = self._prior_index(frame)
         with self._lock:
+            if k is None:
+                prep.features = pool.submit(self._extract, frame)
             self._prepared[int(frame.index)] = prep
+        if k is not None:
+            self._start_waiting()
 
     def _take_prepared(self, frame: Frame) -> _Prepared | None:
         """The work :meth:`prepare` did for this frame object (and forget it, and any left for
@@ -240,10 +304,19 @@ class System:
         ``t["orb"] + t["detect"]`` may exceed the time both took. After :meth:`prepare` both were
         started ahead in worker threads: ``t["orb"]`` and ``t["detect"]`` are then their times in
         those threads, and only the wait for them is in ``t["total"]``."""
+        with self._lock:
+            self._started = max(self._started, int(frame.index))  # the frames before it are resolved
+        self._start_waiting()
         prep = self._take_prepared(frame)
         future = prep.detection if prep is not None else self._submit_detection(frame)
         try:
-            feats, t["orb"] = prep.features.result() if prep is not None else self._extract(frame)
+            if prep is not None and prep.features is not None:
+                feats, t["orb"] = prep.features.result()
+            else:
+                k = self._prior_index(frame)
+                with self._lock:
+                    region = self._prior(k)[1] if k is not None else None
+                feats, t["orb"] = self._extract(frame, region)
         finally:
             detections = None
             if future is not None:  # waited for even when ORB failed: one frame's detection at a time
@@ -268,6 +341,18 @@ class System:
             if moved is not None and len(moved):
                 self.map.remove_points(moved[self.map.alive[moved]])
         return dynamic, table
+
+    def _record_region(self, frame: Frame, table: Any) -> None:
+        """Keep the screened region of this frame as the prior of frame ``index + orb.prior_lag``, and
+        start the extractions that waited for it."""
+        if self._prior_index(frame) is None:
+            return
+        region = getattr(table, "region_mask", None)
+        with self._lock:
+            self._regions[int(frame.index)] = None if region is None else np.asarray(region, bool)
+            for k in [k for k in self._regions if k < int(frame.index) - self.config.orb.prior_lag]:
+                del self._regions[k]  # older than any prior still needed
+        self._start_waiting()
 
     def _screening_context(self, feats: Features, timestamp: float) -> ScreeningContext:
         """What the screener may use before tracking (``dynamic.context``): the constant-velocity
@@ -329,6 +414,7 @@ class System:
         self._apply_loop_corrections(t, loop_errors)
         feats, detections = self._orb_and_detect(frame, t)
         dynamic, table = self._screen(frame, feats, detections, t)
+        self._record_region(frame, table)
         tc = self.config.tracking
         sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),

@@ -23,9 +23,13 @@ N_FRAMES = 36
 
 
 @pytest.mark.slow
-def test_a_cart_that_stood_still_and_starts_slowly_is_flagged_and_not_followed():
+@pytest.mark.parametrize("prior_share", [1.0, 0.25], ids=["plain-extraction", "budget-prior"])
+def test_a_cart_that_stood_still_and_starts_slowly_is_flagged_and_not_followed(prior_share):
+    """``prior_share``: ``orb.prior_region_share``; 1 = the plain extraction, 0.25 (the default) = the cart's region
+    of frame t - 2 keeps a quarter of its share of keypoints (docs/robustness.md, "ORB budget")."""
     seq = TumSequence(synthetic_sequence(stress.random_scene_preset(109, name="random_109", n_frames=N_FRAMES)))
     cfg = Config()  # the room test and the held surfaces are off by default (docs/robustness.md)
+    cfg = replace(cfg, orb=replace(cfg.orb, prior_region_share=prior_share))
     scr = replace(cfg.screening, reference=replace(cfg.screening.reference, room_test=True),
                   temporal=replace(cfg.screening.temporal, hold_frames=10))
     system = build_pipeline(replace(cfg, screening=scr), seq.camera, detector="none", filters="geometry", loop_closing=False)
@@ -50,5 +54,7 @@ def test_a_cart_that_stood_still_and_starts_slowly_is_flagged_and_not_followed()
     assert errors[:23].max() < 0.01
     assert errors[26:].max() < 0.05 and errors[29:].max() < 0.02, errors[26:]
     # the cart's keypoints are dynamic, most of the static world's are not (frames 26-35, measured precision 0.76,
-    # recall 0.87; where the false alarms lie was not traced)
-    assert tp / (tp + fp) >= 0.7 and tp / (tp + fn) >= 0.8, (tp, fp, fn, tp / (tp + fp), tp / (tp + fn))
+    # recall 0.87; where the false alarms lie was not traced). With the budget prior the cart keeps fewer keypoints,
+    # mostly where frame t - 2 did not find it: recall is counted on those (measured 0.87 / 0.68)
+    min_recall = 0.8 if prior_share == 1.0 else 0.6
+    assert tp / (tp + fp) >= 0.7 and tp / (tp + fn) >= min_recall, (tp, fp, fn, tp / (tp + fp), tp / (tp + fn))

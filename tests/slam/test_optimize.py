@@ -238,6 +238,31 @@ def test_metric_depth_row_jacobian_matches_finite_differences():
     assert np.all(r[~d, 2] == 0)
 
 
+@pytest.mark.parametrize("metric", [False, True])
+def test_pose_terms_match_the_reference_residuals_and_jacobian(metric):
+    """The LM loop's precomputed terms (``_PoseTerms``) give the residuals and the Jacobian of
+    ``_pose_residuals`` / ``_pose_point_jacobian`` (u_R row and metric depth row, keypoints without
+    depth among them), and ``_rotation_step`` is ``_rodrigues`` (OpenCV's Rodrigues checks that one)."""
+    rng = np.random.default_rng(11)
+    X = _points(rng, 60)
+    T = make_pose(so3_exp([0.03, 0.01, -0.02]), [0.04, -0.03, 0.02])
+    uv, z = CAM.project(transform_points(T, X))
+    z = np.where(rng.random(60) < 0.3, np.nan, z + rng.normal(0, 0.01, 60))
+    zs = np.where(np.isfinite(z), _nguyen(np.nan_to_num(z)), np.nan) if metric else None
+    obs = Observations.from_keypoints(uv + rng.normal(0, 0.5, uv.shape), z, rng.integers(0, 4, 60), BF, 1.2, z_sigma=zs)
+    R, t = T[:3, :3], T[:3, 3]
+    X_c, RX = X @ R.T + t, X @ R.T
+    terms = opt._PoseTerms(X, obs, CAM, BF)
+    np.testing.assert_allclose(terms.residuals(X_c), opt._pose_residuals(X_c, obs, CAM, BF)[0], rtol=1e-12, atol=1e-12)
+    J_ref = opt._pose_columns(opt._pose_point_jacobian(X_c, obs, CAM, BF), RX).reshape(-1, 6)
+    np.testing.assert_allclose(terms.jacobian(X_c, RX), J_ref, rtol=1e-12, atol=1e-12)
+    keep = rng.random(60) < 0.5
+    np.testing.assert_allclose(terms.subset(keep).residuals(X_c[keep]), opt._pose_residuals(X_c[keep], obs.subset(keep), CAM, BF)[0],
+                               rtol=1e-12, atol=1e-12)
+    for w in ([0.0, 0.0, 0.0], [1e-9, -2e-9, 3e-10], [0.3, -0.2, 0.1], [2.0, 1.0, -0.5]):
+        np.testing.assert_allclose(opt._rotation_step(np.array(w)), opt._rodrigues(np.array(w)), atol=1e-14)
+
+
 def test_metric_depth_row_resolves_rotation_against_translation_on_a_wall():
     """A camera 3 m before a flat wall (the loop scenes' failure): pixels alone barely tell a small yaw
     from a sideways step; with Kinect-like depth noise the metric depth row recovers the pose closer to
