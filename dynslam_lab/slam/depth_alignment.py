@@ -23,7 +23,8 @@ point in the world is ``X_w = R^T (X - t)``; a step gives ``dX_w / d omega = R^T
 Our reading (ours, not ORB-SLAM2, which has no dense term): the reference is the last tracked
 frame (the most overlap); the term joins the feature residuals of motion-only BA only when the
 features fail, or keep few inliers (``TrackingConfig.dense_below_inliers``) with a pose far from the
-motion prediction (``dense = "auto"``; ``"off"`` by default), so
+motion prediction (``dense = "auto"``, the default, and only on frames with few keypoints while the
+screening judges the scene static: ``TrackingConfig.static_scene_frames``, ``dense_max_keypoints``), so
 where features are plenty (and movers may be in the depth image: the screening stage judges
 keypoints, not pixels) nothing changes. Normals come from central differences of the vertex grid;
 a pair with a depth jump, a missing neighbour, or a residual beyond ``max_distance`` metres is left

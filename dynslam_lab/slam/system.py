@@ -376,7 +376,8 @@ class System:
         thumb = cv2.resize(frame.rgb, (160, 120), interpolation=cv2.INTER_AREA)
         kf = KeyFrame.from_frame(self.map.new_keyframe_id(), sf, thumbnail=thumb)
         self.map.add_keyframe(kf)
-        close = np.inf if all_points else self.new_point_depth
+        # far points only while the screening judges the scene static (Tracker.scene_static; ours)
+        close = np.inf if all_points else (self.new_point_depth if self.tracker.scene_static(sf.index) else self.close_depth)
         new = create_points_from_depth(self.map, kf, close, self.config.tracking.kf_new_points_min, frame.rgb)
         sf.map_point_ids = kf.map_point_ids.copy()
         sf.outlier[:] = False

@@ -43,16 +43,21 @@ For each new frame, with only the keypoints the screening stage judged static:
 **Dense depth term** (ours, ``dense``: docs/tracking.md "Dense depth term" has the
 measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
 its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
-prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` only
+prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` (the default) only
 frames the features fail, or keep few inliers with a pose off the motion prediction (suspect), so plain
 walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
-ORB-SLAM2 and the default.
+ORB-SLAM2.
 
-**Far points** (ours, ``new_point_depth``, 0 = off by default): a keyframe makes a map point of every
+**Far points** (ours, ``new_point_depth``, 8 m by default): a keyframe makes a map point of every
 static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
-keyframes, we do not (docs/tracking.md "Far points from depth"). ``new_point_depth = 8`` with
-``dense = "auto"`` tracks rooms with few features or far walls, but lets the tracker follow movers on
-dynamic scenes, hence off (docs/robustness.md "Tracking options and movers").
+keyframes, we do not (docs/tracking.md "Far points from depth").
+
+**When they engage** (ours): the far points and the dense term (``"weak"``, ``"auto"``) assume a static
+world. On dynamic scenes they let the tracker follow a mover the screening judged only in part, so they
+engage only while the screening judged none of the last ``static_scene_frames`` (30) frames dynamic
+(more than ``static_scene_max_dynamic``, 2 %, of its keypoints), and the dense term only on frames with
+fewer than ``dense_max_keypoints`` (500) keypoints with depth (a plain wall, not a mover that took ORB's
+budget). docs/robustness.md "Tracking options and movers" has the measurements.
 
 Dynamic keypoints (``static == False``) are never matched, never used for pose and never turned
 into map points.
@@ -127,7 +132,7 @@ class TrackingConfig:
     kf_close_tracked: int = 100  # fewer tracked close points than this ...; ORB-SLAM2: 100
     kf_close_untracked: int = 70  # ... and more untracked close points -> keyframe; ORB-SLAM2: 70
     kf_new_points_min: int = 100  # new map points per keyframe at least (closest first); ORB-SLAM2: 100
-    new_point_depth: float = 0.0  # m (0 = off, the default: on dynamic scenes far points let tracking follow movers, docs/robustness.md "Tracking options and movers"; 8.0 for rooms with far walls); a keyframe makes a map point of every static keypoint with depth below this (or below the close depth th_depth * bf / fx, whichever is farther), then far ones up to kf_new_points_min; ours: ORB-SLAM2 makes only close points from depth and triangulates far ones between keyframes, which we do not, so a room 3-5 m deep had ~100 points per keyframe and tracking ran out of points (docs/tracking.md "Far points from depth"); 0 = the close depth only (ORB-SLAM2)
+    new_point_depth: float = 8.0  # m; a keyframe makes a map point of every static keypoint with depth below this (or below the close depth th_depth * bf / fx, whichever is farther), then far ones up to kf_new_points_min, while the scene is judged static (static_scene_frames); ours: ORB-SLAM2 makes only close points from depth and triangulates far ones between keyframes, which we do not, so a room 3-5 m deep had ~100 points per keyframe and tracking ran out of points (docs/tracking.md "Far points from depth"); 0 = the close depth only (ORB-SLAM2)
     suspect_translation: float = 0.03  # m; a pose this far from the constant-velocity prediction is suspect (no keyframe on it); ours
     suspect_rotation_deg: float = 1.0  # deg; same for the rotation; ours
     suspect_trusted_inliers: int = 0  # a pose with at least this many inliers is never suspect (a tracker following a mover keeps few); 0 = off; ours, docs/tracking.md "Graceful failure"
@@ -139,7 +144,10 @@ class TrackingConfig:
     depth_sigma_2: float = 0.0019  # m/m^2, quadratic term; Nguyen et al. 2012, Eq. 3
     depth_sigma_zref: float = 0.4  # m, depth of the quadratic term's minimum; Nguyen et al. 2012, Eq. 3
     depth_sigma_scale: float = 1.5  # sigma_z used = this x the sensor's (the map point carries the noise of the keyframe depth it came from, ~sqrt 2, plus its pixel rounding); ours
-    dense: str = "off"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); ours, docs/tracking.md "Dense depth term"
+    dense: str = "auto"  # the dense point-to-plane depth term in motion-only BA: "off" (ORB-SLAM2), "weak" (frames whose feature tracking fails or keeps fewer than dense_below_inliers inliers are tracked again with it), "auto" (frames whose feature tracking fails, or keeps fewer than dense_below_inliers inliers with a pose the suspect thresholds reject), "always" (every frame is tracked with it); "weak" and "auto" only while the scene is judged static (static_scene_frames) and on frames with few keypoints (dense_max_keypoints); ours, docs/tracking.md "Dense depth term"
+    static_scene_frames: int = 30  # frames: the far points (new_point_depth) and the dense term ("weak", "auto") engage only when none of the last this many frames had more than static_scene_max_dynamic of its keypoints judged dynamic (0 = always engaged); ours: on dynamic scenes they let the tracker follow a mover, docs/robustness.md "Tracking options and movers"
+    dense_max_keypoints: int = 500  # "weak" and "auto" engage only on frames with fewer keypoints with depth than this (0 = any frame): a plain wall gives ORB 5-200 keypoints (loop_flat), a mover that takes most of ORB's budget leaves 700-850 that fail to match (random_123, no filter); ours, docs/robustness.md "Tracking options and movers"
+    static_scene_max_dynamic: float = 0.02  # fraction of a frame's keypoints judged dynamic above which the frame counts as dynamic (static_scene_frames); ours
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
@@ -167,10 +175,12 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
                         "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride")
-        non_negative = ("min_depth", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
+        if not 0 <= self.static_scene_max_dynamic <= 1:
+            raise ValueError(f"TrackingConfig.static_scene_max_dynamic must be in [0, 1], got {self.static_scene_max_dynamic}")
+        non_negative = ("min_depth", "static_scene_frames", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
-                        "dense_min_inliers")
+                        "dense_min_inliers", "dense_max_keypoints")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance", "new_point_depth"):
             if getattr(self, name) < 0:
@@ -267,6 +277,10 @@ class Tracker:
         self._dense: DenseTerm | None = None
         self._dense_grid: tuple[int, DepthGrid] | None = None
         self.dense_fraction = 0.0
+        # The low-texture options (far points, dense term) engage only while the screening judges the
+        # scene static (ours): the index of the last frame with more than static_scene_max_dynamic of
+        # its keypoints judged dynamic.
+        self.last_dynamic_frame = -(10**9)
 
     # -------------------------------------------------------------- helpers
     def depth_sigma(self, z: np.ndarray) -> np.ndarray:
@@ -294,6 +308,21 @@ class Tracker:
         frame.T_w_c = se3_inv(T)
         frame.outlier[idx[out]] = True
         return int((~out).sum())
+
+    def note_screening(self, frame: SlamFrame) -> None:
+        """Record whether the screening judged more than ``static_scene_max_dynamic`` of ``frame``'s
+        keypoints dynamic (:meth:`scene_static`)."""
+        n = len(frame.static)
+        if n and int(n - frame.static.sum()) > self.cfg.static_scene_max_dynamic * n:
+            self.last_dynamic_frame = frame.index
+
+    def scene_static(self, frame_index: int) -> bool:
+        """The screening judged none of the last ``static_scene_frames`` frames up to ``frame_index``
+        dynamic (ours): only then do the far points and the dense term ("weak", "auto") engage. They
+        assume a static world: with a mover the screening judges only in part they follow it
+        (docs/robustness.md "Tracking options and movers"). Without a screener every frame is static."""
+        n = self.cfg.static_scene_frames
+        return n == 0 or frame_index - self.last_dynamic_frame > n
 
     def _discard_outliers(self, frame: SlamFrame) -> None:
         frame.map_point_ids[frame.outlier] = -1
@@ -591,6 +620,7 @@ class Tracker:
         cfg = self.cfg
         ok = False
         self.method = ""
+        self.note_screening(frame)
         self.predicted_T_c_w = None
         self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
@@ -637,10 +667,14 @@ class Tracker:
         ``"weak"``: failed or fewer than ``dense_below_inliers`` inliers; ``"auto"``: failed, or fewer
         inliers *and* a pose the graceful-failure guard calls suspect (farther than ``suspect_translation``
         / ``suspect_rotation_deg`` from the constant-velocity prediction: a few features on a plain wall or
-        a repeated pattern that jumped). Ours, docs/tracking.md "Dense depth term, automatic"."""
+        a repeated pattern that jumped). Neither while the scene is not judged static (:meth:`scene_static`) nor
+        on a frame with ``dense_max_keypoints`` keypoints with depth or more. Ours, docs/tracking.md "Dense
+        depth term, automatic"."""
         cfg = self.cfg
-        if cfg.dense in ("off", "always"):
+        if cfg.dense in ("off", "always") or not self.scene_static(frame.index):
             return False
+        if cfg.dense_max_keypoints and int(np.isfinite(frame.depth).sum()) >= cfg.dense_max_keypoints:
+            return False  # texture enough: the features failed for another reason (a mover took them)
         if not ok:
             return True
         if self.n_inliers >= cfg.dense_below_inliers:

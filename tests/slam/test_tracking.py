@@ -242,16 +242,18 @@ def _blanked(frames, lo: int, hi: int):
     return [dataclasses.replace(f, rgb=np.full_like(f.rgb, 120)) if lo <= i < hi else f for i, f in enumerate(frames)]
 
 
-@pytest.mark.parametrize("mode", ["off", "auto"])
+@pytest.mark.parametrize("mode", ["off", "auto", "auto, dynamic scene"])
 def test_dense_auto_tracks_textureless_frames_that_features_lose(mode):
     """``dense = "auto"``: frames without a single keypoint (features fail) are tracked by the depth term
-    alone, against the renderer's poses; with ``"off"`` they are lost. Frames with features keep ORB-SLAM2's
-    tracking (method ``motion_model``)."""
+    alone, against the renderer's poses; with ``"off"`` they are lost, and so with ``"auto"`` while the
+    screening judges the scene dynamic (a third of the keypoints, ``static_scene_frames``). Frames with
+    features keep ORB-SLAM2's tracking (method ``motion_model``)."""
     frames = _blanked(scene.frames(24, "xyz"), 12, 16)
-    sys_ = System(CAM, Config(tracking=TrackingConfig(dense=mode)))
+    sys_ = System(CAM, Config(tracking=TrackingConfig(dense=mode.split(",")[0])),
+                  screener=_LeftThirdDynamic() if "dynamic" in mode else None)
     results = [sys_.process(f) for f in frames]
     blank = results[12:16]
-    if mode == "off":
+    if mode != "auto":
         assert [r.state for r in blank] == [TrackState.LOST] * 4
         return
     assert [r.method for r in blank] == ["dense"] * 4 and all(r.n_features == 0 for r in blank)
@@ -270,8 +272,8 @@ def test_dense_auto_engages_only_on_weak_and_suspect_feature_poses():
     f = make_slam_frame(fr, extract_features(fr.rgb[:, :, 0]))
     tr.predicted_T_c_w = np.eye(4)
 
-    def needs(n, dt=0.0, deg=0.0, ok=True, mode="auto"):
-        tr.cfg = TrackingConfig(dense=mode)
+    def needs(n, dt=0.0, deg=0.0, ok=True, mode="auto", max_keypoints=0):
+        tr.cfg = TrackingConfig(dense=mode, dense_max_keypoints=max_keypoints)
         tr.n_inliers = n
         f.T_w_c = make_pose(so3_exp([0.0, np.radians(deg), 0.0]), [dt, 0.0, 0.0])
         return tr._needs_dense(f, ok)
@@ -281,25 +283,43 @@ def test_dense_auto_engages_only_on_weak_and_suspect_feature_poses():
     assert needs(60, 0.04) and needs(60, 0.0, 1.5)  # few inliers and jumped
     assert not needs(150, 0.2, 5.0)  # many inliers: the features are trusted
     assert needs(60, mode="weak") and not needs(60, 0.2, 5.0, mode="off") and not needs(0, ok=False, mode="off")
+    # texture enough (dense_max_keypoints): features that fail among this many keypoints with depth failed
+    # for another reason (a mover took them), the depth term stays out; with fewer it engages
+    n_depth = int(np.isfinite(f.depth).sum())
+    assert n_depth > 300
+    assert not needs(0, ok=False, max_keypoints=n_depth) and needs(0, ok=False, max_keypoints=n_depth + 1)
+    # and only while the screening judges the scene static (static_scene_frames frames without > 2 % dynamic)
+    tr.last_dynamic_frame = f.index - 30
+    assert not needs(0, ok=False)
+    tr.last_dynamic_frame = f.index - 31
+    assert needs(0, ok=False)
 
 
-@pytest.mark.parametrize("new_point_depth", [0.0, 8.0])
-def test_keyframe_points_from_depth_up_to_new_point_depth(new_point_depth):
+@pytest.mark.parametrize("new_point_depth, dynamic_ago", [(0.0, None), (8.0, None), (8.0, 30), (8.0, 31)])
+def test_keyframe_points_from_depth_up_to_new_point_depth(new_point_depth, dynamic_ago):
     """A keyframe of a room 4-5 m deep (the rendered room's depth x 1.8): with ``new_point_depth = 0``
     (ORB-SLAM2: close points, z < th_depth bf / fx = 3.05 m, then the closest far ones up to 100) it
     gets 100 points; with 8 m every static keypoint with depth becomes a point, at the depth-image's
-    3D position."""
+    3D position, unless a frame ``dynamic_ago`` <= ``static_scene_frames`` (30) frames before had more than
+    2 % of its keypoints judged dynamic: then ORB-SLAM2's rule."""
     f0 = scene.frames(1, "xyz")[0]
-    far = dataclasses.replace(f0, depth=f0.depth * 1.8)
+    far = dataclasses.replace(f0, depth=f0.depth * 1.8, index=100)
     s = System(CAM, Config(tracking=TrackingConfig(new_point_depth=new_point_depth)))
     assert s.close_depth == pytest.approx(4.0 * 400.0 / CAM.fx)
     sf = make_slam_frame(far, extract_features(far.rgb[:, :, 0]))
     sf.T_w_c = f0.T_w_c_gt
+    if dynamic_ago is not None:
+        earlier = make_slam_frame(dataclasses.replace(far, index=100 - dynamic_ago), extract_features(far.rgb[:, :, 0]))
+        earlier.static[: int(0.03 * len(earlier.static))] = False  # 3 % judged dynamic
+        s.tracker.note_screening(earlier)
+        sf.static[: int(0.015 * len(sf.static))] = False  # 1.5 %: this frame counts as static
+        s.tracker.note_screening(sf)
+        assert s.tracker.scene_static(sf.index) == (dynamic_ago > 30)
     z = sf.depth
     has = sf.static & np.isfinite(z)
     assert np.nanmin(z[has]) > s.close_depth  # every keypoint is "far" for ORB-SLAM2
     kf, new = s._new_keyframe(sf, far)
-    if new_point_depth == 0.0:
+    if new_point_depth == 0.0 or dynamic_ago == 30:
         assert len(new) == 100 and np.all(z[kf.map_point_ids >= 0] <= np.sort(z[has])[99])
     else:
         assert len(new) == int((has & (z <= 8.0)).sum()) > 500
