@@ -358,15 +358,14 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
     kept, desc = orb.compute(gray, kept)
     if desc is None or not kept:
         return Features.empty()
-    uv = np.array([k.pt for k in kept], dtype=np.float32)
-    octave = np.array([k.octave for k in kept], dtype=np.int64)
+    uv, octave, response = _keypoint_arrays(kept)
     if cfg.subpixel_levels > 0:
         uv = refine_subpixel(gray, uv, octave, cfg)
     return Features(
         uv=uv,
         octave=octave,
         angle=np.array([k.angle for k in kept], dtype=np.float64),
-        response=np.array([k.response for k in kept], dtype=np.float64),
+        response=response,
         descriptors=desc,
     )
 

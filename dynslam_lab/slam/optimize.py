@@ -241,7 +241,9 @@ def _pose_columns(Jp: np.ndarray, RX: np.ndarray) -> np.ndarray:
 def _pose_residuals(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals of motion-only BA ``(K, 3)`` and the ``has_depth`` mask: ORB-SLAM2's
     ``(u, v, u_R)`` (:func:`_residuals`), or with ``obs.z_sigma`` the metric depth row
-    ``(z_c - z) / sigma_z`` in place of the ``u_R`` row (module docstring, "Metric depth row")."""
+    ``(z_c - z) / sigma_z`` in place of the ``u_R`` row (module docstring, "Metric depth row"). Written as
+    the equations read; the solver uses :class:`_PoseTerms`, which the tests compare with this and with
+    :func:`_pose_point_jacobian`."""
     r, has_d = _residuals(X_c, obs, camera, bf)
     if obs.z_sigma is not None:
         r[has_d, 2] = (X_c[has_d, 2] - obs.z[has_d]) / obs.z_sigma[has_d]
@@ -261,11 +263,7 @@ def _pose_point_jacobian(X_c: np.ndarray, obs: Observations, camera: PinholeCame
 
 def pose_observation_chi2(X_c: np.ndarray, obs: Observations, camera: PinholeCamera, bf: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`observation_chi2` of motion-only BA (with the metric depth row where ``obs.z_sigma`` is set)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r, has_d = _pose_residuals(X_c, obs, camera, bf)
-    chi2 = np.sum(r**2, axis=1)
-    bad = ~(chi2 <= np.where(has_d, CHI2_3DOF, CHI2_2DOF)) | ~(X_c[:, 2] > 0)
-    return chi2, bad
+    return _PoseTerms(X_c, obs, camera, bf).classify(X_c)
 
 
 def _rotation_step(omega: np.ndarray) -> np.ndarray:
@@ -328,6 +326,15 @@ class _PoseTerms:
         else:
             r[:, 2] = (pu - self.bf * iz - self.m3) * self.w3
         return r
+
+    def classify(self, X_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``chi^2 (K,)`` at the camera points ``X_c`` and whether each is an outlier (95 % quantile by
+        degrees of freedom: 3 with depth, 2 without); points behind the camera are outliers."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = self.residuals(X_c)
+        chi2 = np.einsum("ij,ij->i", r, r)
+        bad = ~(chi2 <= np.where(self.w3 > 0, CHI2_3DOF, CHI2_2DOF)) | ~(X_c[:, 2] > 0)
+        return chi2, bad
 
     def jacobian(self, X_c: np.ndarray, RX: np.ndarray) -> np.ndarray:
         """``(3K, 6)`` Jacobian of :meth:`residuals` in the pose step ``(omega, tau)``."""
@@ -448,17 +455,13 @@ def optimize_pose(
     t = np.asarray(T_c_w, float)[:3, 3].copy()
     outlier = np.zeros(len(X_w), bool)
     terms = _PoseTerms(X_w, obs, camera, bf)
-    limit = np.where(terms.w3 > 0, CHI2_3DOF, CHI2_2DOF)  # chi^2 test by degrees of freedom (depth or not)
     for rnd in range(rounds):
         use = ~outlier
         if use.sum() < 3 and dense is None:
             break
         delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
         R, t, _ = _lm_pose_terms(R, t, terms if use.all() else terms.subset(use), delta2, max_iterations, dense)
-        X_c = X_w @ R.T + t  # every observation classified again (pose_observation_chi2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = terms.residuals(X_c)
-        outlier = ~(np.einsum("ij,ij->i", r, r) <= limit) | ~(X_c[:, 2] > 0)
+        _, outlier = terms.classify(X_w @ R.T + t)  # every observation classified again
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
     return T, outlier
