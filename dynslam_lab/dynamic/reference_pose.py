@@ -78,11 +78,12 @@ class ReferencePoseConfig:
     segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
-    room_test: bool = False  # test a surface holding most matches against the room (step 3b; off by default: it fixes random_108/109 but failed other scenes, docs/robustness.md); ours
+    room_test: bool = True  # test a surface holding most matches against the room (step 3b; on since the ORB budget, without held surfaces: docs/robustness.md "The room test, on by default"); ours
     dominant_share: float = 0.4  # a surface holding this share of the matches ... (step 3b); ours
     dominant_gain: float = 1.5  # ... when the room's median error under the pose with the surface is this many times that under its own pose (the surface pulled the pose) ...; ours
     dominant_gain_weak: float = 1.15  # ... or this many times while the surface misses by twice the bound; ours
     dominant_area_ratio: float = 1.5  # ... is tested against the matches on surfaces this many times larger (the room), and counts as the minority when it misses them; ours
+    dominant_room_min_matches: int = 50  # ... when the room holds at least this many matches (refined alone on 15-39, a room of one or two surfaces fits itself better than any other pose: door_static); ours
     max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
     max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
 
@@ -92,6 +93,8 @@ class ReferencePoseConfig:
                 raise ValueError(f"ReferencePoseConfig.{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.max_hamming <= 256:
             raise ValueError(f"ReferencePoseConfig.max_hamming must be in [0, 256] bits, got {self.max_hamming}")
+        if self.dominant_room_min_matches < 6:
+            raise ValueError(f"ReferencePoseConfig.dominant_room_min_matches must be >= 6 (a pose has 6 degrees of freedom), got {self.dominant_room_min_matches}")
         if not 0 < self.ratio <= 1:
             raise ValueError(f"ReferencePoseConfig.ratio must be in (0, 1], got {self.ratio}")
         if not self.scales_px or any(v <= 0 for v in self.scales_px):
@@ -273,13 +276,13 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     than the pose with it. The worst such surface (minorities first) is removed and the search
     repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
 
-    **Dominant surfaces** (ours; with ``room_test``, off by default): a surface holding at least
+    **Dominant surfaces** (ours; with ``room_test``, on by default): a surface holding at least
     ``dominant_share`` of the matches is a mover mapped while it stood still, if anything is (a textured cart 1.3 m in front of the camera carries half
     the keypoints on 6 % of the image). When it starts slowly, ``T_c_w`` and the prediction follow it
     within a few frames, and so do the cart's other faces: left out alone, it is held by them. So it is
     tested against **the room**: the matches on surfaces at least ``dominant_area_ratio`` times larger
     (``surface_cells``: depth-grid cells per label, label 0 first; every match ``matched``, also those
-    beyond the prediction's gate), refined from wide Cauchy scales (``(8,) + scales_px``, five steps
+    beyond the prediction's gate; at least ``dominant_room_min_matches`` of them, else no test), refined from wide Cauchy scales (``(8,) + scales_px``, five steps
     each). The room agrees with the mover's pose within a pixel or so, but refined on its own it returns
     to the static world's; under that pose the surface misses its map points and counts as the
     minority: the static world is the majority of the scene, not of its texture. Only when the surface
@@ -311,7 +314,7 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
                 # of which moved), with every match on them, also those beyond the prediction's gate
                 pool = (use if matched is None else matched) & ~out & (labels > 0)
                 fit = pool & (surface_cells[labels] >= config.dominant_area_ratio * surface_cells[lab])
-                if fit.sum() < config.segment_min_matches:
+                if fit.sum() < max(config.segment_min_matches, config.dominant_room_min_matches):
                     fit = None
             dominant = fit is not None
             if dominant:
