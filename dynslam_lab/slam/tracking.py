@@ -48,6 +48,11 @@ frames the features fail, or keep few inliers with a pose off the motion predict
 walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
 ORB-SLAM2.
 
+**Joint refinement** (ours, ``joint_position_sigma`` / ``joint_rotation_deg``, off by default): a frame
+the features tracked whose pose they fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on
+a few objects of a plain room) is refined by motion-only BA over its features and the dense term together
+(method ``"joint"``; docs/tracking.md "Weak feature poses").
+
 **Far points** (ours, ``new_point_depth``, 8 m by default): a keyframe makes a map point of every
 static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
 keyframes, we do not (docs/tracking.md "Far points from depth").
