@@ -80,6 +80,7 @@ from ..camera import PinholeCamera
 from ..geometry.se3 import nearest_rotation
 
 __all__ = [
+    "pose_uncertainty",
     "CHI2_2DOF",
     "CHI2_3DOF",
     "Observations",
@@ -465,6 +466,41 @@ def optimize_pose(
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
     return T, outlier
+
+
+def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
+                     bf: float) -> tuple[float, float]:
+    """How well the observations fix one pose: the largest standard deviation of the camera centre (m)
+    and of its orientation (deg) that motion-only BA (eq. 2, no robust kernel) has at ``T_c_w`` if each
+    whitened residual has unit variance (one pixel at level 0): the inverse of the Gauss-Newton
+    information ``H = J^T J`` (the Cramer-Rao bound of the least-squares pose).
+
+    With the step ``R <- Exp(omega) R``, ``t <- t + tau`` the centre ``c = -R^T t`` moves by
+    ``dc = -R^T [t]_x omega - R^T tau`` to first order, so ``Cov(c) = J_c H^-1 J_c^T``; the orientation's is
+    the ``omega`` block of ``H^-1``. Points clustered in a small part of the image leave a lateral
+    translation and a rotation that explain them alike (large values); ``(inf, inf)`` when ``H`` is
+    singular (fewer than 3 observations, or a degenerate set). Ours, to tell a weak feature pose."""
+    X_w = np.asarray(X_w, float).reshape(-1, 3)
+    if len(X_w) != len(obs):
+        raise ValueError(f"pose_uncertainty: {len(X_w)} points but {len(obs)} observations")
+    R, t = np.asarray(T_c_w, float)[:3, :3], np.asarray(T_c_w, float)[:3, 3]
+    terms = _PoseTerms(X_w, obs, camera, bf)
+    RX = terms.X @ R.T
+    X_c = RX + t
+    front = X_c[:, 2] > _MIN_DEPTH
+    if front.sum() < 3:
+        return float("inf"), float("inf")
+    J = terms.subset(front).jacobian(X_c[front], RX[front])
+    H = J.T @ J
+    if np.linalg.cond(H) > 1e12:
+        return float("inf"), float("inf")
+    C = np.linalg.inv(H)
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    J_c = -R.T @ np.hstack([tx, np.eye(3)])
+    cov_c = J_c @ C @ J_c.T
+    sigma_c = np.sqrt(max(float(np.linalg.eigvalsh(cov_c)[-1]), 0.0))
+    sigma_r = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(C[:3, :3])[-1]), 0.0)))
+    return float(sigma_c), float(sigma_r)
 
 
 # ----------------------------------------------------------------------------- bundle adjustment

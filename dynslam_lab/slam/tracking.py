@@ -48,6 +48,11 @@ frames the features fail, or keep few inliers with a pose off the motion predict
 walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
 ORB-SLAM2.
 
+**Joint refinement** (ours, ``joint_position_sigma`` / ``joint_rotation_deg``, off by default): a frame
+the features tracked whose pose they fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on
+a few objects of a plain room) is refined by motion-only BA over its features and the dense term together
+(method ``"joint"``; docs/tracking.md "Weak feature poses").
+
 **Far points** (ours, ``new_point_depth``, 8 m by default): a keyframe makes a map point of every
 static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
 keyframes, we do not (docs/tracking.md "Far points from depth").
@@ -79,7 +84,7 @@ from .depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
-from .optimize import Observations, optimize_pose
+from .optimize import Observations, optimize_pose, pose_uncertainty
 
 __all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pose_distance"]
 
@@ -156,6 +161,8 @@ class TrackingConfig:
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
     dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
+    joint_position_sigma: float = 0.0  # m; a frame the features tracked is refined with the dense term too ("joint") when its feature pose leaves the camera centre this uncertain (optimize.pose_uncertainty, 1 px noise) or more, while "weak"/"auto" engage (static scene); 0 = off (the default: it trades loop_pattern's ATE for loop_flat's); tried 0.0025; ours, docs/tracking.md "Weak feature poses: features and depth together"
+    joint_rotation_deg: float = 0.0  # deg; same for the orientation; 0 = off; tried 0.05; ours
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
@@ -180,7 +187,7 @@ class TrackingConfig:
         non_negative = ("min_depth", "static_scene_frames", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
-                        "dense_min_inliers", "dense_max_keypoints")
+                        "dense_min_inliers", "dense_max_keypoints", "joint_position_sigma", "joint_rotation_deg")
         ratios = ("ref_ratio", "local_ratio", "reloc_ratio", "kf_ref_ratio", "motion_ratio")
         for name in ("motion_refine_radius", "match_depth_tolerance", "new_point_depth"):
             if getattr(self, name) < 0:
@@ -638,6 +645,8 @@ class Tracker:
                         frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers, self.ref_kf, self.method = kept
                     else:
                         self.method = ""
+                elif ok and self._needs_joint(frame):
+                    self.refine_joint(frame)
             state = TrackState.OK if ok else TrackState.LOST
         else:
             ok = self.relocalize(frame)
@@ -684,6 +693,55 @@ class Tracker:
         if self.predicted_T_c_w is None or frame.T_w_c is None:
             return False
         return self._off_prediction(*pose_distance(self.predicted_T_c_w @ frame.T_w_c))
+
+    def feature_pose_uncertainty(self, frame: SlamFrame) -> tuple[float, float]:
+        """``(m, deg)``: how uncertain ``frame``'s pose is from its matched points alone
+        (:func:`~.optimize.pose_uncertainty`: the largest standard deviation of the camera centre and
+        orientation of motion-only BA at one pixel of noise)."""
+        idx = np.flatnonzero(frame.map_point_ids >= 0)
+        if frame.T_w_c is None or len(idx) < 3:
+            return float("inf"), float("inf")
+        return pose_uncertainty(se3_inv(frame.T_w_c), self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx),
+                                self.camera, self.cfg.bf)
+
+    def _needs_joint(self, frame: SlamFrame) -> bool:
+        """Whether a frame the features tracked is refined with the dense term as well (:meth:`refine_joint`):
+        ``"weak"`` or ``"auto"``, the scene judged static (:meth:`scene_static`), and a feature pose whose
+        uncertainty (:meth:`feature_pose_uncertainty`) reaches ``joint_position_sigma`` or
+        ``joint_rotation_deg``: matches clustered on a few objects of a plain room. Ours, docs/tracking.md
+        "Weak feature poses: features and depth together"."""
+        cfg = self.cfg
+        if cfg.dense not in ("weak", "auto") or not self.scene_static(frame.index):
+            return False
+        if cfg.joint_position_sigma <= 0 and cfg.joint_rotation_deg <= 0:
+            return False
+        s_c, s_r = self.feature_pose_uncertainty(frame)
+        return (0 < cfg.joint_position_sigma <= s_c) or (0 < cfg.joint_rotation_deg <= s_r)
+
+    def refine_joint(self, frame: SlamFrame) -> bool:
+        """Motion-only BA of ``frame``'s feature matches together with the dense depth term (its depth
+        image against the last frame's, :mod:`.depth_alignment`), from the feature pose. Kept (method
+        ``"joint"``) when ``dense_min_fraction`` of the depth samples are associated and
+        ``min_track_inliers`` matches stay inliers; otherwise the feature pose stands."""
+        cfg = self.cfg
+        term = self._dense_term(frame)
+        if term is None:
+            return False
+        kept = (frame.T_w_c, frame.map_point_ids.copy(), self.n_inliers)
+        self._dense = term
+        try:
+            n = self._optimize(frame, se3_inv(frame.T_w_c))
+        finally:
+            self._dense = None
+        T = se3_inv(frame.T_w_c)
+        fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
+        if n < cfg.min_track_inliers or fraction < cfg.dense_min_fraction:
+            frame.T_w_c, frame.map_point_ids, self.n_inliers = kept
+            frame.outlier[:] = False
+            return False
+        self._discard_outliers(frame)
+        self.dense_fraction, self.n_inliers, self.method = fraction, n, "joint"
+        return True
 
     def _track_features(self, frame: SlamFrame) -> bool:
         """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""
