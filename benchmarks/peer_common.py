@@ -5,13 +5,15 @@ A peer script is run as ``python benchmarks/peer_NAME.py SEQDIR --out DIR [--max
 [--camera PRESET]`` and writes, each file atomically:
 
 * ``DIR/trajectory.txt``: TUM format (``t tx ty tz qx qy qz qw``, ``T_w_c``), every tracked frame;
-* ``DIR/timing.csv``: ``frame,timestamp,track_ms,tracked``, one row per frame;
+* ``DIR/timing.csv``: ``frame,timestamp,decode_ms,track_ms,total_ms,tracked``, one row per frame;
 * ``DIR/peer.json``: ``peer``, ``frames``, ``tracked``, ``lost``, ``lost_frames``, ``loops``,
-  ``timing_mean_ms``/``timing_median_ms`` (``{"track": ms, "total": ms}``, as ``dynslam run``'s
-  ``summary.json``), ``init_s``, ``wall_time_s``, ``settings``, ``errors``.
+  ``timing_mean_ms``/``timing_median_ms`` (``{"decode": ms, "track": ms, "total": ms}``, as
+  ``dynslam run``'s ``summary.json``), ``init_s``, ``wall_time_s``, ``settings``, ``errors``.
 
-``track_ms`` is measured inside the peer process around its track call only, after the frame's
-PNG files are decoded (``dynslam run``'s per-frame ``total`` excludes decoding too).
+Each frame's time is measured inside the peer process: ``decode_ms`` reading its PNG files
+(:func:`load_frame_images`), ``track_ms`` its track call, ``total_ms`` both. ``total`` is the one
+``benchmarks/peers.py`` compares with dynslam's ``wall``, which includes decoding as well (the part its
+read-ahead thread did not hide): both systems are timed from the files to the pose.
 ``python benchmarks/peer_NAME.py --check`` exits 0 when the peer's library imports, and 3 with
 the reason otherwise. This module imports only the toolkit (MIT), never a peer library.
 """
@@ -179,8 +181,8 @@ class PeerRecorder:
     """Per-frame results of a peer run, written as the run folder described in the module docstring.
 
     Usage: ``rec = PeerRecorder("open3d_tensor", seqdir, out, camera)``, then per frame
-    ``rec.add(frame, ms, T_w_c or None)`` (or ``rec.error(frame, exc)`` for a frame that could
-    not be read), then ``rec.write(settings)``.
+    ``rec.add(frame, track_ms, T_w_c or None, decode_ms)`` (or ``rec.error(frame, exc)`` for a frame
+    that could not be read), then ``rec.write(settings)``.
     """
 
     peer: str
@@ -190,7 +192,7 @@ class PeerRecorder:
     started: float = field(default_factory=time.perf_counter)
     init_s: float = 0.0
     loops: int = 0
-    rows: list[tuple[int, float, float, bool]] = field(default_factory=list)
+    rows: list[tuple[int, float, float, float, bool]] = field(default_factory=list)  # frame, t, decode ms, track ms, tracked
     stamps: list[float] = field(default_factory=list)
     poses: list[np.ndarray] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
@@ -201,10 +203,11 @@ class PeerRecorder:
             raise FileExistsError(f"{self.out}: already holds a run (peer.json / trajectory.txt); choose another --out")
         self.out.mkdir(parents=True, exist_ok=True)
 
-    def add(self, frame: TumFrame, track_ms: float, T_w_c: np.ndarray | None) -> None:
-        """Record one frame: its track time (ms) and pose, or None when the peer lost it."""
+    def add(self, frame: TumFrame, track_ms: float, T_w_c: np.ndarray | None, decode_ms: float = 0.0) -> None:
+        """Record one frame: its track time and the time decoding its images (ms), and its pose, or
+        None when the peer lost it."""
         ok = T_w_c is not None and bool(np.isfinite(T_w_c).all())
-        self.rows.append((frame.index, frame.timestamp, float(track_ms), ok))
+        self.rows.append((frame.index, frame.timestamp, float(decode_ms), float(track_ms), ok))
         if ok:
             self.stamps.append(frame.timestamp)
             self.poses.append(np.asarray(T_w_c, dtype=np.float64))
@@ -214,7 +217,7 @@ class PeerRecorder:
         msg = f"frame {frame.index} ({frame.rgb.name}): {exc}"
         print(f"warning: {msg}", file=sys.stderr)
         self.errors.append(msg)
-        self.rows.append((frame.index, frame.timestamp, float("nan"), False))
+        self.rows.append((frame.index, frame.timestamp, float("nan"), float("nan"), False))
 
     def trajectory(self) -> Trajectory:
         if not self.poses:
@@ -222,11 +225,12 @@ class PeerRecorder:
         return Trajectory(np.asarray(self.stamps), np.stack(self.poses))
 
     def summary(self, settings: dict) -> dict:
-        ms = np.array([r[2] for r in self.rows], dtype=np.float64)
-        ms = ms[np.isfinite(ms)]
-        lost = [r[0] for r in self.rows if not r[3]]
-        mean = float(ms.mean()) if len(ms) else float("nan")
-        median = float(np.median(ms)) if len(ms) else float("nan")
+        ms = np.array([(r[2], r[3]) for r in self.rows], dtype=np.float64).reshape(-1, 2)
+        ms = ms[np.isfinite(ms).all(axis=1)]
+        ms = {"decode": ms[:, 0], "track": ms[:, 1], "total": ms.sum(axis=1)}
+        lost = [r[0] for r in self.rows if not r[4]]
+        mean = {k: float(v.mean()) if len(v) else float("nan") for k, v in ms.items()}
+        median = {k: float(np.median(v)) if len(v) else float("nan") for k, v in ms.items()}
         return {
             "peer": self.peer,
             "sequence": str(self.seqdir),
@@ -236,8 +240,8 @@ class PeerRecorder:
             "lost": len(lost),
             "lost_frames": lost,
             "loops": int(self.loops),
-            "timing_mean_ms": {"track": mean, "total": mean},
-            "timing_median_ms": {"track": median, "total": median},
+            "timing_mean_ms": mean,
+            "timing_median_ms": median,
             "init_s": float(self.init_s),
             "wall_time_s": time.perf_counter() - self.started,
             "settings": settings,
@@ -252,9 +256,9 @@ class PeerRecorder:
         write_atomic(self.out / "trajectory.txt", lambda tmp: write_tum_trajectory(traj, tmp, header=header))
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["frame", "timestamp", "track_ms", "tracked"])
-        for i, t, ms, ok in self.rows:
-            w.writerow([i, f"{t:.6f}", f"{ms:.3f}", int(ok)])
+        w.writerow(["frame", "timestamp", "decode_ms", "track_ms", "total_ms", "tracked"])
+        for i, t, dec, ms, ok in self.rows:
+            w.writerow([i, f"{t:.6f}", f"{dec:.3f}", f"{ms:.3f}", f"{dec + ms:.3f}", int(ok)])
         write_atomic(self.out / "timing.csv", buf.getvalue())
         summary = self.summary(settings)
         write_atomic(self.out / "peer.json", json.dumps(summary, indent=1) + "\n")

@@ -110,6 +110,7 @@ def run(args) -> int:
     target = None  # the last tracked frame's image
     T_w_target = np.eye(4)
     for frame in frames:
+        t0 = time.perf_counter()
         try:
             bgr, depth = load_frame_images(frame)
         except Exception as exc:  # a bad frame is logged and counted lost; the run goes on
@@ -121,11 +122,11 @@ def run(args) -> int:
         T_target_source = np.eye(4) if target is None else odo.motion(source, target)
         dt = time.perf_counter() - t
         if T_target_source is None:
-            rec.add(frame, 1000.0 * dt, None)
+            rec.add(frame, 1000.0 * dt, None, decode_ms=1000.0 * (t - t0))
             continue
         T_w_target = T_w_target @ T_target_source
         target = source
-        rec.add(frame, 1000.0 * dt, T_w_target)
+        rec.add(frame, 1000.0 * dt, T_w_target, decode_ms=1000.0 * (t - t0))
     settings = {"method": args.method, "depth_max_m": args.depth_max, "depth_scale": camera.depth_scale,
                 "init": "identity", "open3d": package_version("open3d-cpu") or package_version("open3d")}
     summary = rec.write(settings)

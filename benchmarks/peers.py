@@ -17,11 +17,12 @@ each in its own process:
 Every trajectory is scored by the toolkit's own evaluation
 (:func:`dynslam_lab.evaluation.evaluate`, what ``dynslam eval`` prints): ATE RMSE after a
 rigid (SE(3)) alignment, RPE translation/rotation RMSE over consecutive tracked frames. Time
-per frame is each system's own, measured in its process: a peer's around its per-frame call
-(PNG decoding excluded); dynslam's is the frame's whole time in the run loop (``wall`` of
-``timing.csv``: ``System.process`` and the wait for the frame, whose decoding and ORB extraction
-the read-ahead thread does beside the previous frame, so what it did not hide is counted);
-``wall_s`` is the whole process (start-up, vocabulary, decoding).
+per frame is each system's own, measured in its process, **from the PNG files to the pose, decoding
+included for every system**: a peer's is decoding the frame's images plus its per-frame call
+(``total`` of its ``peer.json``; ``track`` alone is there too); dynslam's is the frame's whole time in
+the run loop (``wall`` of ``timing.csv``: ``System.process`` and the wait for the frame, whose decoding
+and ORB extraction the read-ahead thread does beside the previous frame, so what it did not hide is
+counted). ``wall_s`` is the whole process (start-up, vocabulary, decoding).
 Ratios are to the reference peer on the same sequence (``--reference``, default the first
 peer of ``--peers`` that ran): ``ate_ratio`` < 1 means a smaller error than the peer.
 
@@ -78,9 +79,9 @@ COLUMNS = (
     "ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "mean_ms", "median_ms", "wall_s",
     "ate_ratio", "rpe_trans_ratio", "mean_ms_ratio", "reference", "run_dir",
 )
-#: The per-frame time compared, by kind of system: dynslam's ``wall`` (the frame's whole time in the run
-#: loop: ``System.process`` plus the wait for the frame, i.e. its decoding and ORB extraction where the
-#: read-ahead thread did not hide them), a peer's time around its track call.
+#: The per-frame time compared, by kind of system, both from the files to the pose: dynslam's ``wall`` (the
+#: frame's whole time in the run loop: ``System.process`` plus the wait for the frame, i.e. its decoding and
+#: ORB extraction where the read-ahead thread did not hide them), a peer's decoding plus its track call.
 FRAME_TIME = {"dynslam": "wall", "peer": "total"}
 _RATIOS = {"ate_ratio": "ate_rmse_m", "rpe_trans_ratio": "rpe_trans_rmse_m", "mean_ms_ratio": "mean_ms"}
 
@@ -582,7 +583,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{s.label}: {s.skip}")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     header = (f"{len(seqdirs)} sequence(s), {args.max_frames or 'all'} frames; detector `{args.detector}`; "
-              f"{os.cpu_count()} CPU cores, load average {load:.2f} at the start; runs back to back per sequence.")
+              f"{os.cpu_count()} CPU cores, load average {load:.2f} at the start; runs back to back per sequence; "
+              "ms per frame from the PNG files to the pose (decoding included) for every system.")
     rows = run_benchmark(seqdirs, specs, out, args.max_frames, args.reference, args.timeout, args.reuse,
                          not args.no_plots, header)
     print()

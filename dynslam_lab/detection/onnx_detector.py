@@ -211,6 +211,10 @@ class OnnxDetector:
         opts.log_severity_level = 3  # old exports list initialisers as inputs: ort warns per tensor
         if self.config.num_threads > 0:
             opts.intra_op_num_threads = self.config.num_threads
+        # No spin-waiting of the intra-op threads between operators: the detector runs beside ORB and
+        # tracking (System.prepare), and spinning burnt the core they need (walking_xyz `full`, 150
+        # frames: process CPU 30 s -> 20 s, docs/speed.md); same detections.
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types

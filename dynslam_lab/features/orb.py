@@ -24,8 +24,11 @@ descriptors of the kept keypoints.
 
 With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
 ``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
-Bescos et al. 2018) and the pixels outside get the rest, each side from its own detection masked to it
-(a textured mover would otherwise take OpenCV's candidates too); see docs/robustness.md, "ORB budget".
+Bescos et al. 2018) and the pixels outside get the rest. Both sides take their candidates from one
+detection with ``region_candidates`` times the usual number of corners, split by the region; a side
+the other one crowded out of that list (a textured mover), or that has too few corners at the FAST
+threshold, gets a detection of its own, masked to it (:func:`budget_candidates`); see
+docs/robustness.md, "ORB budget", and docs/speed.md.
 
 The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
 """
@@ -33,12 +36,16 @@ The keypoint pixels ``uv`` are in level-0 (full image) pixel coordinates.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
-__all__ = ["OrbConfig", "Features", "extract_features", "refine_subpixel", "level_quotas", "region_quotas", "scale_factors"]
+__all__ = [
+    "OrbConfig", "Features", "Candidates", "extract_features", "refine_subpixel", "level_quotas", "region_quotas",
+    "budget_candidates", "scale_factors",
+]
 
 
 @dataclass(frozen=True)
@@ -62,6 +69,7 @@ class OrbConfig:
     prior_region_share: float = 0.25  # quota of the region a screener found dynamic on an earlier frame (fraction, as above; 1 = off; > 0 keeps keypoints on movers for the screener to judge: docs/robustness.md); ours
     prior_lag: int = 2  # the prior region of frame t is the screened region of frame t - prior_lag (frames; >= 1; 1 delays extraction until the previous frame is screened); ours
     prior_dilate_px: int = 16  # the prior region grows by this many pixels (movers move between frames); ours
+    region_candidates: float = 2.0  # with a region: corners of the one detection both sides share, as a multiple of the plain extraction's (n_features x oversample); ours (docs/speed.md)
 
     def __post_init__(self) -> None:
         if self.n_features < 1:
@@ -94,6 +102,8 @@ class OrbConfig:
             raise ValueError(f"OrbConfig.prior_lag must be >= 1 frame, got {self.prior_lag}")
         if self.prior_dilate_px < 0:
             raise ValueError(f"OrbConfig.prior_dilate_px must be >= 0 pixels, got {self.prior_dilate_px}")
+        if not self.region_candidates >= 1.0:
+            raise ValueError(f"OrbConfig.region_candidates must be >= 1 (multiple of n_features x oversample), got {self.region_candidates}")
 
 
 @dataclass
@@ -161,8 +171,13 @@ def level_quotas(cfg: OrbConfig) -> np.ndarray:
 _ORB_OBJECTS = threading.local()
 
 
-def _orb_object(cfg: OrbConfig, fast_threshold: int) -> cv2.ORB:
-    key = (int(np.ceil(cfg.n_features * cfg.oversample)), float(cfg.scale_factor), int(cfg.n_levels),
+def _n_candidates(cfg: OrbConfig, widen: float = 1.0) -> int:
+    """Corners asked from OpenCV: ``n_features x oversample`` (x ``widen``: the budget's shared detection)."""
+    return int(np.ceil(cfg.n_features * cfg.oversample * widen))
+
+
+def _orb_object(cfg: OrbConfig, fast_threshold: int, n_candidates: int | None = None) -> cv2.ORB:
+    key = (_n_candidates(cfg) if n_candidates is None else int(n_candidates), float(cfg.scale_factor), int(cfg.n_levels),
            int(cfg.edge_threshold), int(cfg.patch_size), int(fast_threshold))
     cache = getattr(_ORB_OBJECTS, "by_key", None)
     if cache is None:
@@ -176,8 +191,9 @@ def _orb_object(cfg: OrbConfig, fast_threshold: int) -> cv2.ORB:
     return orb
 
 
-def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int, mask: np.ndarray | None = None) -> tuple[cv2.ORB, list]:
-    orb = _orb_object(cfg, fast_threshold)
+def _detect(gray: np.ndarray, cfg: OrbConfig, fast_threshold: int, mask: np.ndarray | None = None,
+            n_candidates: int | None = None) -> tuple[cv2.ORB, list]:
+    orb = _orb_object(cfg, fast_threshold, n_candidates)
     return orb, list(orb.detect(gray, mask))
 
 
@@ -254,40 +270,97 @@ def _inside(region: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def _keypoint_arrays(kps: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    uv = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
+    # cv2.KeyPoint_convert: the float32 pixels as stored (k.pt, 70x faster than a list of tuples)
+    uv = (cv2.KeyPoint_convert(kps) if kps else np.zeros((0, 2))).astype(np.float32).reshape(-1, 2)
     octave = np.array([k.octave for k in kps], dtype=np.int64)
     response = np.array([k.response for k in kps], dtype=np.float64)
     return uv, octave, response
 
 
+class Candidates(NamedTuple):
+    """Corners one side of a region chooses its keypoints from: entries ``index`` of the ``cv2.KeyPoint``
+    list ``kps`` (a detection's, shared by both sides), with their arrays."""
+
+    kps: list
+    index: np.ndarray  # (N,) int64 into kps
+    uv: np.ndarray  # (N, 2) float32 level-0 pixels
+    octave: np.ndarray  # (N,) int64
+    response: np.ndarray  # (N,) float64
+
+    def keypoints(self, keep: np.ndarray | None = None) -> list:
+        """The ``cv2.KeyPoint`` objects (of the candidates ``keep``, default all)."""
+        return [self.kps[i] for i in (self.index if keep is None else self.index[keep])]
+
+
+def _candidates(kps: list, keep: np.ndarray | None = None, arrays=None) -> Candidates:
+    """``kps`` (or its entries ``keep``) with their arrays (computed, or ``arrays`` indexed)."""
+    if keep is None:
+        return Candidates(kps, np.arange(len(kps)), *(_keypoint_arrays(kps) if arrays is None else arrays))
+    return Candidates(kps, keep, *(a[keep] for a in arrays))
+
+
+def budget_candidates(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, quotas_in: np.ndarray,
+                      mask: np.ndarray | None = None) -> tuple[cv2.ORB, Candidates, Candidates, int]:
+    """The corners each side of a dynamic ``region`` chooses its keypoints from.
+
+    One detection at ``cfg.fast_threshold`` asks OpenCV for ``cfg.region_candidates`` times the plain
+    extraction's corners over the allowed pixels (``mask``), and splits them by the region (keypoint
+    pixel, nearest integer). OpenCV keeps, per level, a fixed number of corners by response: a
+    textured mover can take that list. So a side gets a detection of its own, masked to it, at
+    ``cfg.min_fast_threshold`` (ORB-SLAM2's minThFAST) when
+
+    * it was **crowded out**: at a level where the detection kept all it could, the side got fewer
+      than ``cfg.oversample`` times its quota there, or
+    * it is **short**: fewer corners than its quota at the FAST threshold (low texture; ORB-SLAM2
+      retries at minThFAST there, as the plain extraction does).
+
+    The region's quotas are ``quotas_in`` (``(n_levels,)``, :func:`region_quotas`), the outside's
+    the rest of :func:`level_quotas`. Returns ``(orb, inside, outside, detections)``: the ORB object
+    of the shared detection, each side's :class:`Candidates` (``inside`` empty when the region's
+    quota is 0) and the number of detections run (1-3). Deterministic: it depends on the image only.
+    """
+    allowed = None if mask is None else (mask > 0)
+    n_wide = _n_candidates(cfg, cfg.region_candidates)
+    orb, kps = _detect(gray, cfg, cfg.fast_threshold, None if allowed is None else allowed.astype(np.uint8) * 255, n_wide)
+    arrays = _keypoint_arrays(kps)
+    inside = _inside(region, arrays[0])
+    lvl = np.clip(arrays[1], 0, cfg.n_levels - 1)
+    caps = level_quotas(replace(cfg, n_features=n_wide))  # OpenCV's corners per level (the same series)
+    full = np.bincount(lvl, minlength=cfg.n_levels) >= caps
+    detections = 1
+    sides = []
+    for sel, quota, pixels in ((inside, quotas_in, region), (~inside, level_quotas(cfg) - quotas_in, ~region)):
+        if quota.sum() <= 0:
+            sides.append(_candidates([]))
+            continue
+        got = np.bincount(lvl[sel], minlength=cfg.n_levels)
+        crowded = bool(np.any(full & (got < np.ceil(cfg.oversample * quota))))
+        if crowded or got.sum() < quota.sum():
+            own = pixels if allowed is None else pixels & allowed
+            sides.append(_candidates(_detect(gray, cfg, cfg.min_fast_threshold, own.astype(np.uint8) * 255)[1]))
+            detections += 1
+        else:
+            sides.append(_candidates(kps, np.flatnonzero(sel), arrays))
+    return orb, sides[0], sides[1], detections
+
+
 def _budgeted(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, share: float, mask: np.ndarray | None) -> tuple[cv2.ORB, list]:
     """The keypoints kept when the region gets ``share`` of its fair share of the budget (see
     :func:`region_quotas`) and the rest of each level's quota goes to the cells outside it, spread
-    by their area outside the region. Each side has its own detection (masked to it), so a textured
-    mover cannot take OpenCV's candidate budget either."""
+    by their area outside the region; each side chooses among its own candidates
+    (:func:`budget_candidates`), so a textured mover cannot take the static side's."""
     quotas = level_quotas(cfg)
     r, cover = region_quotas(region, cfg, share)
-    outside = ~region if mask is None else (~region & (mask > 0))
-    # One detection per side at the lower FAST threshold (ORB-SLAM2's minThFAST): the candidates compete
-    # by Harris response inside each side's quota, and the threshold-20 pass (and its retry) would
-    # double the cost on the weak texture a textured mover leaves outside.
-    allowed = None if mask is None else (mask > 0).astype(np.uint8)
-    ins: list = []
-    if share > 0 and r.sum() > 0:
-        m_in = region.astype(np.uint8) * 255 if allowed is None else region.astype(np.uint8) * allowed * 255
-        orb, ins = _detect(gray, cfg, cfg.min_fast_threshold, m_in)
-    orb, outs = _detect(gray, cfg, cfg.min_fast_threshold, outside.astype(np.uint8) * 255)
+    orb, ins, outs, _ = budget_candidates(gray, cfg, region, r, mask)
     kept: list = []
-    if ins and r.sum() > 0:
-        uv, octave, response = _keypoint_arrays(ins)
-        keep = _bucket(uv, octave, response, gray.shape, cfg, r, _cell_shares(r, cover))
-        kept = [ins[i] for i in keep]
-    if outs:
-        lvl = np.clip(np.array([k.octave for k in kept], np.int64), 0, cfg.n_levels - 1)
-        rest = quotas - np.bincount(lvl, minlength=cfg.n_levels)[: cfg.n_levels]
-        uv, octave, response = _keypoint_arrays(outs)
-        keep = _bucket(uv, octave, response, gray.shape, cfg, rest, _cell_shares(rest, 1.0 - cover))
-        kept += [outs[i] for i in keep]
+    rest = quotas
+    if len(ins.index):
+        keep = _bucket(ins.uv, ins.octave, ins.response, gray.shape, cfg, r, _cell_shares(r, cover))
+        kept = ins.keypoints(keep)
+        rest = quotas - np.bincount(np.clip(ins.octave[keep], 0, cfg.n_levels - 1), minlength=cfg.n_levels)[: cfg.n_levels]
+    if len(outs.index):
+        keep = _bucket(outs.uv, outs.octave, outs.response, gray.shape, cfg, rest, _cell_shares(rest, 1.0 - cover))
+        kept += outs.keypoints(keep)
     return orb, kept
 
 

@@ -132,6 +132,22 @@ def test_peer_frames_are_the_frames_dynslam_reads():
     assert np.array_equal(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), seq[3].rgb)
 
 
+def test_peer_recorder_times_decoding_and_tracking(tmp_path):
+    """A peer's frame time is decoding + tracking (dynslam's ``wall`` includes its decoding too)."""
+    frames = [peer_common.TumFrame(i, 0.1 * i, tmp_path / f"{i}.png", tmp_path / f"d{i}.png") for i in range(3)]
+    rec = peer_common.PeerRecorder("fake", tmp_path, tmp_path / "run", CAMERA_PRESETS["default"])
+    for frame, (dec, track) in zip(frames, ((4.0, 10.0), (6.0, 20.0), (5.0, 60.0))):
+        rec.add(frame, track, np.eye(4), decode_ms=dec)
+    rec.error(peer_common.TumFrame(3, 0.3, tmp_path / "3.png", tmp_path / "d3.png"), DatasetError("unreadable"))
+    summary = rec.write({})
+    assert summary["timing_mean_ms"] == {"decode": 5.0, "track": 30.0, "total": 35.0}
+    assert summary["timing_median_ms"] == {"decode": 5.0, "track": 20.0, "total": 26.0}
+    assert (summary["frames"], summary["lost_frames"]) == (4, [3])
+    rows = list(csv.DictReader((tmp_path / "run" / "timing.csv").open()))
+    assert [float(r["total_ms"]) for r in rows[:3]] == [14.0, 26.0, 65.0]
+    assert rows[3]["total_ms"] == "nan" and rows[3]["tracked"] == "0"
+
+
 def test_load_frame_images_rejects_8_bit_depth(tmp_path):
     cv2.imwrite(str(tmp_path / "c.png"), np.zeros((4, 6, 3), np.uint8))
     cv2.imwrite(str(tmp_path / "d.png"), np.zeros((4, 6), np.uint8))
@@ -309,7 +325,11 @@ def test_dynslam_and_orbslam3_side_by_side_on_a_static_sequence(tmp_path):
     assert dyn["ate_rmse_m"] == pytest.approx(_scores(seq, Path(dyn["run_dir"]))["ate"]["rmse"])
     assert dyn["ate_ratio"] == pytest.approx(dyn["ate_rmse_m"] / orb["ate_rmse_m"])
     timing = (Path(orb["run_dir"]) / "timing.csv").read_text().splitlines()
-    assert timing[0] == "frame,timestamp,track_ms,tracked" and len(timing) == 61
+    assert timing[0] == "frame,timestamp,decode_ms,track_ms,total_ms,tracked" and len(timing) == 61
+    # the peer's frame time compared is decoding + tracking, as dynslam's wall includes its decoding
+    peer = json.loads((Path(orb["run_dir"]) / "peer.json").read_text())["timing_mean_ms"]
+    assert peer["decode"] > 0 and peer["total"] == pytest.approx(peer["decode"] + peer["track"])
+    assert orb["mean_ms"] == pytest.approx(peer["total"])
 
 
 @pytest.mark.slow

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dynslam_lab.features.orb import OrbConfig, extract_features, level_quotas, region_quotas
+from dynslam_lab.features.orb import OrbConfig, budget_candidates, extract_features, level_quotas, region_quotas
 
 
 def _textured(seed: int = 3, shape=(480, 640)) -> np.ndarray:
@@ -88,3 +88,58 @@ def test_bad_region_input_is_refused():
     for field, value in (("truth_region_share", -0.1), ("prior_region_share", 2.0), ("prior_lag", 0), ("prior_dilate_px", -1)):
         with pytest.raises(ValueError, match=field):
             OrbConfig(**{field: value})
+
+
+def _opencv(img, n, threshold, mask=None):
+    """An independent OpenCV detection with the toolkit's pyramid settings: ``(x, y, octave)`` rows."""
+    orb = cv2.ORB_create(nfeatures=n, scaleFactor=1.2, nlevels=8, edgeThreshold=19, patchSize=31, fastThreshold=threshold)
+    return sorted((k.pt[0], k.pt[1], k.octave) for k in orb.detect(img, mask))
+
+
+def _rows(c) -> list:
+    return sorted((float(u), float(v), int(o)) for (u, v), o in zip(c.uv, c.octave))
+
+
+def test_both_sides_share_one_detection_where_neither_crowds_the_other():
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur((rng.random((480, 640)) * 255).astype(np.uint8), (5, 5), 1.2)  # even texture
+    region = np.zeros(img.shape, bool)
+    region[100:300, 200:360] = True
+    cfg = OrbConfig()
+    r, _ = region_quotas(region, cfg, 0.25)
+    orb, ins, outs, n_det = budget_candidates(img, cfg, region, r)
+    assert n_det == 1
+    # the sides are OpenCV's one detection with region_candidates x 2,500 corners at FAST threshold 20, split
+    ref = _opencv(img, int(np.ceil(1000 * 2.5 * cfg.region_candidates)), 20)
+    assert len(ins.index) + len(outs.index) == len(ref) > 2500
+    assert sorted(_rows(ins) + _rows(outs)) == ref
+    xy_in = np.round(ins.uv).astype(int)
+    assert region[xy_in[:, 1], xy_in[:, 0]].all()
+    xy_out = np.clip(np.round(outs.uv).astype(int), 0, [639, 479])
+    assert not region[xy_out[:, 1], xy_out[:, 0]].any()
+    # the kept keypoints come from those candidates, and the same call gives the same keypoints
+    f = extract_features(img, cfg, region=region, region_share=0.25)
+    assert {(float(u), float(v)) for u, v in f.uv} <= {(x, y) for x, y, _ in ref}
+    np.testing.assert_array_equal(_signature(f), _signature(extract_features(img, cfg, region=region, region_share=0.25)))
+
+
+def test_a_side_crowded_out_or_short_gets_its_own_detection():
+    """The high-contrast right half as the region: at FAST threshold 20 the low-contrast left half has
+    few corners of the shared list, so the outside gets its own detection, masked to it, at threshold 7."""
+    img = _textured()
+    cfg = OrbConfig()
+    region = _right_half()
+    r, _ = region_quotas(region, cfg, 0.0)
+    _, ins, outs, n_det = budget_candidates(img, cfg, region, r)
+    assert n_det == 2 and len(ins.index) == 0  # share 0: no candidates in the region
+    assert _rows(outs) == _opencv(img, 2500, 7, (~region).astype(np.uint8) * 255)
+    # a mask restricts both the shared detection and the side's own
+    mask = np.zeros(img.shape, np.uint8)
+    mask[:240] = 1
+    _, _, outs, _ = budget_candidates(img, cfg, region, r, mask)
+    assert _rows(outs) == _opencv(img, 2500, 7, ((~region) & (mask > 0)).astype(np.uint8) * 255)
+
+
+def test_region_candidates_is_validated():
+    with pytest.raises(ValueError, match="region_candidates"):
+        OrbConfig(region_candidates=0.5)
