@@ -163,8 +163,16 @@ def test_a_cart_holding_most_matches_that_pulled_the_pose_is_found_against_the_r
     moving, T_room, room = moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, cfg, T_followed, cells)
     assert room and moving[cart].all() and not moving[~cart].any()
     assert _pose_error(T_room, T_TRUE)[0] < 3e-3
-    # off (the default), the room test does not run
-    assert not moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, ReferencePoseConfig(), T_followed, cells)[2]
+    # on by default; off, it does not run
+    assert ReferencePoseConfig().room_test
+    off = ReferencePoseConfig(room_test=False)
+    assert not moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, off, T_followed, cells)[2]
+    # nor against a room of fewer matches than dominant_room_min_matches (the room here holds 150): refined
+    # alone on a few dozen, a room fits itself better than any other pose (door_static's false verdicts)
+    few = ReferencePoseConfig(room_test=True, dominant_room_min_matches=151)
+    assert not moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, few, T_followed, cells)[2]
+    with pytest.raises(ValueError, match="dominant_room_min_matches"):
+        ReferencePoseConfig(dominant_room_min_matches=3)
     # the same scene with the cart still: nothing moves, the pose stays
     X_w, uv, labels, cells, n_room = _cart_scene(0.0)
     T = refine_pose(T_TRUE, X_w, uv, CAM.K)
