@@ -182,8 +182,9 @@ def test_two_concurrent_runs_and_a_real_sigint(seqdir, tmp_path, capsys):
     assert first.returncode == 0, first_err
     assert verify_run(out) == [] and json.loads((out / "summary.json").read_text())["processed"] == 24
 
-    # A sequence long enough (ca. 200 frames) that the signal lands mid-run on a fast machine too.
-    long_seq = write_sequence(tmp_path / "seq_long", n=40, back_and_forth=5)
+    # A sequence long enough (ca. 600 frames) that the signal lands mid-run on a fast machine too (with ca. 200
+    # the faster extraction of 2026-12-02 finished a CI run before the signal: exit 0); it stops at the signal.
+    long_seq = write_sequence(tmp_path / "seq_long", n=40, back_and_forth=15)
     n_long = len((long_seq / "rgb.txt").read_text().splitlines()) - 1
     cmd[cmd.index(str(seq))] = str(long_seq)
     out2 = tmp_path / "sigint"
