@@ -182,13 +182,16 @@ def test_two_concurrent_runs_and_a_real_sigint(seqdir, tmp_path, capsys):
     assert first.returncode == 0, first_err
     assert verify_run(out) == [] and json.loads((out / "summary.json").read_text())["processed"] == 24
 
-    # A sequence long enough (ca. 600 frames) that the signal lands mid-run on a fast machine too (with ca. 200
-    # the faster extraction of 2026-12-02 finished a CI run before the signal: exit 0); it stops at the signal.
-    long_seq = write_sequence(tmp_path / "seq_long", n=40, back_and_forth=15)
+    # A sequence long enough (ca. 200 frames) that the signal lands mid-run on a fast machine too.
+    long_seq = write_sequence(tmp_path / "seq_long", n=40, back_and_forth=5)
     n_long = len((long_seq / "rgb.txt").read_text().splitlines()) - 1
     cmd[cmd.index(str(seq))] = str(long_seq)
     out2 = tmp_path / "sigint"
-    proc = subprocess.Popen(cmd + ["--out", str(out2)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C on a foreground run: SIGINT at its default disposition in the child, also when pytest itself was
+    # started in the background by a shell without job control, which leaves SIGINT ignored for its children
+    # (then a signal before the run installs its handler was ignored and the run ended with 0)
+    proc = subprocess.Popen(cmd + ["--out", str(out2)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     _wait_for(out2 / "summary.json", proc)
     time.sleep(float(np.random.default_rng(5).uniform(0.0, 0.5)))
     assert proc.poll() is None, "the run finished before the signal: make the sequence longer"
