@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from ..geometry.epipolar import epipolar_distance
+from ..geometry.se3 import skew
 from .table import check_uv
 
 __all__ = [
@@ -236,9 +237,8 @@ def fundamental_from_pose(T_c_p: np.ndarray, K: np.ndarray) -> np.ndarray | None
     R, t = np.asarray(T_c_p[:3, :3], float), np.asarray(T_c_p[:3, 3], float)
     if np.linalg.norm(t) < 1e-4:
         return None
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
     Kinv = np.linalg.inv(np.asarray(K, float))
-    return Kinv.T @ tx @ R @ Kinv
+    return Kinv.T @ skew(t) @ R @ Kinv
 
 
 def epipolar_check(

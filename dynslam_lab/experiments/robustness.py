@@ -50,6 +50,9 @@ FILTERS: dict[str, tuple[str, str]] = {
     "full+oracle": ("full", "oracle"),
     "oracle masks": ("oracle", "none"),
 }
+#: Measures where a smaller value is worse (the keypoint scores); for every other one a larger value is.
+_LOW_IS_WORSE = ("precision", "recall", "precision_at_rest_ok")
+
 #: Label of the run on the sequence without movers (filter ``none``).
 REFERENCE = "no movers"
 
@@ -267,7 +270,7 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     Worst is the largest ATE, ratio, lost frames, loops and time, and the smallest precision and recall.
     """
     cols_hi = ["ate_rmse_m", "ate_vs_none", "ate_vs_reference", "ate_vs_oracle", "lost", "loops", "ms_per_frame", "screen_ms"]
-    cols_lo = ["precision", "recall", "precision_at_rest_ok"]
+    cols_lo = list(_LOW_IS_WORSE)
     out = []
     for label, g in df.groupby("filter", sort=False):
         row = {"filter": label, "sequences": len(g)}
@@ -316,7 +319,7 @@ def robustness_markdown(df: pd.DataFrame) -> str:
         if len(v) == 0:
             lines.append(f"- {text}: not measured")
             continue
-        worse = v > bound if col not in ("precision", "recall", "precision_at_rest_ok") else v < bound
+        worse = v > bound if col not in _LOW_IS_WORSE else v < bound
         fails = [s for s, bad in zip(g.loc[v.index, "sequence"], worse) if bad]
         lines.append(f"- {text}: met on {len(v) - len(fails)} of {len(v)}"
                      + (f" (missed on: {', '.join(fails)})" if fails else ""))

@@ -21,6 +21,7 @@ __all__ = [
     "matrix_to_quat_xyzw",
     "pose_from_tum",
     "pose_to_tum",
+    "skew",
     "so3_exp",
     "so3_log",
     "rotation_angle_deg",
@@ -140,6 +141,15 @@ def pose_to_tum(T: np.ndarray) -> np.ndarray:
     """Poses ``(..., 4, 4)`` to rows ``tx ty tz qx qy qz qw`` ``(..., 7)``."""
     T = np.asarray(T, dtype=np.float64)
     return np.concatenate([T[..., :3, 3], matrix_to_quat_xyzw(T[..., :3, :3])], axis=-1)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[v]_x (..., 3, 3)`` of vectors ``(..., 3)``: ``[v]_x w = v x w``."""
+    v = np.asarray(v, dtype=np.float64)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
 
 
 def so3_exp(omega: np.ndarray) -> np.ndarray:

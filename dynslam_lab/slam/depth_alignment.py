@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import so3_log
+from ..geometry.se3 import skew, so3_log
 
 __all__ = ["DepthGrid", "vertex_normal_grid", "DenseTerm"]
 
@@ -153,6 +153,6 @@ class DenseTerm:
         e = np.concatenate([so3_log(dR) / s_r, (t - q) / s_t])
         J = np.zeros((6, 6))
         J[:3, :3] = np.eye(3) / s_r
-        J[3:, :3] = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]]) / s_t
+        J[3:, :3] = skew(q) / s_t
         J[3:, 3:] = np.eye(3) / s_t
         return e, J

@@ -77,7 +77,7 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from scipy.sparse.linalg import spsolve
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import nearest_rotation
+from ..geometry.se3 import nearest_rotation, skew
 
 __all__ = [
     "pose_uncertainty",
@@ -495,8 +495,7 @@ def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, came
     if np.linalg.cond(H) > 1e12:
         return float("inf"), float("inf")
     C = np.linalg.inv(H)
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    J_c = -R.T @ np.hstack([tx, np.eye(3)])
+    J_c = -R.T @ np.hstack([skew(t), np.eye(3)])
     cov_c = J_c @ C @ J_c.T
     sigma_c = np.sqrt(max(float(np.linalg.eigvalsh(cov_c)[-1]), 0.0))
     sigma_r = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(C[:3, :3])[-1]), 0.0)))

@@ -43,6 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
+from ..geometry.se3 import skew
 from .optimize import solve_spd
 
 __all__ = ["PoseGraphConfig", "PoseGraphResult", "optimize_pose_graph", "edge_residuals", "correct_points"]
@@ -85,19 +86,11 @@ def _apply_update(R0: np.ndarray, t0: np.ndarray, x: np.ndarray) -> tuple[np.nda
     return R, t0 + d[:, 3:]
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``(E, 3)`` -> ``(E, 3, 3)`` cross-product matrices."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return S
-
-
 def _inv_right_jacobian(phi: np.ndarray) -> np.ndarray:
     """Inverse right Jacobian of SO(3) ``(E, 3)`` -> ``(E, 3, 3)``:
     ``I + [phi]_x / 2 + (1 / th^2 - (1 + cos th) / (2 th sin th)) [phi]_x^2``."""
     th = np.linalg.norm(phi, axis=1)[:, None, None]
-    W = _skew(phi)
+    W = skew(phi)
     small = th < 1e-6
     ths = np.where(small, 1.0, th)
     c = np.where(small, 1.0 / 12.0, 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths)))
@@ -210,7 +203,7 @@ def _edge_jacobian(R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarra
     Jj = np.zeros((len(edges), 6, 6))
     Ji[:, :3, :3] = -rotation_weight * Jr_inv_Rj
     Jj[:, :3, :3] = rotation_weight * Jr_inv_Rj
-    Ji[:, 3:, :3] = A @ _skew(t[j] - t[i])
+    Ji[:, 3:, :3] = A @ skew(t[j] - t[i])
     Ji[:, 3:, 3:] = -A
     Jj[:, 3:, 3:] = A
     return Ji, Jj

@@ -75,3 +75,13 @@ def test_quaternion_conversions_match_scipy():
     np.testing.assert_allclose(G.quat_xyzw_to_matrix(qs), Rotation.from_quat(qs.reshape(-1, 4)).as_matrix().reshape(3, 4, 3, 3),
                                atol=1e-12)
     assert G.matrix_to_quat_xyzw(R[:12].reshape(3, 4, 3, 3)).shape == (3, 4, 4)
+
+
+def test_skew_is_the_cross_product_matrix():
+    rng = np.random.default_rng(3)
+    v, w = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    S = G.skew(v)
+    assert S.shape == (7, 3, 3)
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", S, w), np.cross(v, w), atol=1e-12)
+    np.testing.assert_allclose(G.skew(v[0]), -G.skew(v[0]).T)
+    assert G.skew(v[0]).shape == (3, 3)
