@@ -177,10 +177,13 @@ def _timed_ms(fn, *args):
     return out, (time.perf_counter() - t0) * 1e3
 
 
-def track_lk_async(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig()) -> Future:
+def track_lk_async(prev_gray: np.ndarray, gray: np.ndarray, uv: np.ndarray, config: LkConfig = LkConfig(),
+                   guess: np.ndarray | None = None) -> Future:
     """:func:`track_lk` started in the worker thread (:func:`run_beside`); the future gives ``((uv_prev, ok), ms)``
-    (``ms``: the pass's own duration): the screener's reference pose is computed while LK matches the previous frame."""
-    return run_beside(_timed_ms, track_lk, prev_gray, gray, check_uv(uv).copy(), config)  # a copy: the caller may change uv
+    (``ms``: the pass's own duration): the screener's reference pose is computed while LK matches the previous frame,
+    the multi-frame grid tests while it matches an older one."""
+    guess = None if guess is None else np.array(guess, np.float64)  # copies: the caller may change its arrays
+    return run_beside(_timed_ms, track_lk, prev_gray, gray, check_uv(uv).copy(), config, guess)
 
 
 def pair_inputs(where: str, uv, uv_prev, matched, exclude, **per_keypoint) -> tuple[np.ndarray, ...]:

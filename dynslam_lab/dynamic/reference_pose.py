@@ -167,35 +167,21 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
     steps each), the pose updated on the left (``T <- exp(delta) T``).
     """
     T = np.asarray(T_c_w, np.float64).copy()
-    X_w = np.asarray(X_w, np.float64)
-    uv = np.asarray(uv, np.float64)
-    inv_sigma = np.ones(len(X_w)) if sigma is None else 1.0 / np.asarray(sigma, np.float64)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    Xt = np.ascontiguousarray(np.asarray(X_w, np.float64).reshape(-1, 3).T)  # (3, M): rows x, y, z contiguous
+    qt = np.asarray(uv, np.float64).reshape(-1, 2).T
+    inv_sigma = np.ones(Xt.shape[1]) if sigma is None else 1.0 / np.asarray(sigma, np.float64)
     damping = 1e-9 * np.eye(6)
-    Ju, Jv = np.zeros((len(X_w), 6)), np.zeros((len(X_w), 6))  # rows refilled each step (columns 4 / 3 stay 0)
     for s in scales_px:
         for _ in range(int(iterations)):
-            X = X_w @ T[:3, :3].T + T[:3, 3]
-            z = X[:, 2]
-            ok = z > 1e-6
-            n_ok = int(np.count_nonzero(ok))
-            if n_ok < 6:
+            X = T[:3, :3] @ Xt
+            X += T[:3, 3:]
+            ok = X[2] > 1e-6
+            if ok.all():  # the usual case: no copies
+                H, g = _gauss_newton_step(X, qt, inv_sigma, K, s)
+            elif np.count_nonzero(ok) < 6:
                 return T
-            if n_ok == len(ok):  # the usual case: no copies
-                x, y, isg, q = X[:, 0], X[:, 1], inv_sigma, uv
             else:
-                x, y, z, isg, q = X[ok, 0], X[ok, 1], z[ok], inv_sigma[ok], uv[ok]
-            iz = 1.0 / z
-            r = (q - np.stack([fx * x * iz + cx, fy * y * iz + cy], axis=1)) * isg[:, None]
-            w = isg * isg / (1.0 + (np.einsum("ij,ij->i", r, r) / (s * s)))
-            # d(u, v) / d(omega, v) for a left perturbation of the camera-frame point, one (M, 6) block per row
-            xz, yz = x * iz, y * iz
-            ju, jv = Ju[:n_ok], Jv[:n_ok]
-            ju[:, 0], ju[:, 1], ju[:, 2], ju[:, 3], ju[:, 5] = -fx * xz * yz, fx * (1 + xz * xz), -fx * yz, fx * iz, -fx * xz * iz
-            jv[:, 0], jv[:, 1], jv[:, 2], jv[:, 4], jv[:, 5] = -fy * (1 + yz * yz), fy * xz * yz, fy * xz, fy * iz, -fy * yz * iz
-            H = ju.T @ (ju * w[:, None]) + jv.T @ (jv * w[:, None])
-            rw = r / isg[:, None] * w[:, None]  # residuals in px, weighted
-            g = ju.T @ rw[:, 0] + jv.T @ rw[:, 1]
+                H, g = _gauss_newton_step(X[:, ok], qt[:, ok], inv_sigma[ok], K, s)
             try:
                 delta = np.linalg.solve(H + damping, g)
             except np.linalg.LinAlgError:
@@ -207,6 +193,50 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
             if np.linalg.norm(delta) < 1e-8:
                 break
     return T
+
+
+def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: np.ndarray, s: float):
+    """The normal equations ``(H (6, 6), g (6,))`` of one reweighted Gauss-Newton step of :func:`refine_pose`
+    at the camera points ``X (3, M)`` (in front of the camera) observed at ``qt (2, M)`` px.
+
+    The Jacobian of ``(u, v)`` for a left perturbation ``(omega, v)`` of the camera-frame point is laid out
+    as one ``(6, 2M)`` matrix (the ``u`` rows of every point, then the ``v`` rows), so that
+    ``H = J W J^T`` and ``g = J W r`` are two matrix products, ``W`` holding each row's Cauchy weight
+    ``sigma^-2 / (1 + |r / sigma|^2 / s^2)``.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    m = X.shape[1]
+    iz = 1.0 / X[2]
+    xz, yz = X[0] * iz, X[1] * iz
+    J = np.zeros((6, 2 * m))
+    ju, jv = J[:, :m], J[:, m:]
+    xy = xz * yz
+    np.multiply(xy, -fx, out=ju[0])
+    np.multiply(xy, fy, out=jv[1])
+    t = xz * xz
+    t += 1.0
+    np.multiply(t, fx, out=ju[1])
+    t = yz * yz
+    t += 1.0
+    np.multiply(t, -fy, out=jv[0])
+    np.multiply(yz, -fx, out=ju[2])
+    np.multiply(xz, fy, out=jv[2])
+    np.multiply(iz, fx, out=ju[3])
+    np.multiply(iz, fy, out=jv[4])
+    np.multiply(xz * iz, -fx, out=ju[5])
+    np.multiply(yz * iz, -fy, out=jv[5])
+    r = np.empty(2 * m)  # residuals in px
+    np.subtract(qt[0], fx * xz + cx, out=r[:m])
+    np.subtract(qt[1], fy * yz + cy, out=r[m:])
+    isg2 = inv_sigma * inv_sigma
+    e2 = r * r
+    q = e2[:m] + e2[m:]
+    q *= isg2
+    q *= 1.0 / (s * s)
+    q += 1.0
+    w = isg2 / q
+    Jw = J * np.concatenate([w, w])
+    return Jw @ J.T, Jw @ r
 
 
 def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig):

@@ -439,8 +439,7 @@ def multiframe_stage(w: FrameWork) -> None:
     margin = np.full(n, np.nan)
     margin[ok] = fs.margin_m
     w.values["free_space_m"] = margin
-    moved_2d = _older_frame_2d_test(w, refs, X_w, ok)
-    col |= moved_2d
+    older_lk = _start_older_frame_lk(w, refs, X_w, ok)  # in the worker thread while the grid tests run
     # the reduced grid
     cam = w.grid_camera
     small = w.small_depth
@@ -464,6 +463,8 @@ def multiframe_stage(w: FrameWork) -> None:
         w.values["far_violations"] = far_viol
         viol[keep] += free_space_test(P_w, far_refs, cam, cfg, margin=False).violations
         w.timings["far_frames"] = _ms(t0)
+    moved_2d = _older_frame_2d_test(w, X_w, ok, older_lk)
+    col |= moved_2d
     agree = np.zeros(h * wd, np.int64)
     agree[keep] = g.agreements
     occluded = np.full(h * wd, len(refs), np.int64)
@@ -481,14 +482,13 @@ def multiframe_stage(w: FrameWork) -> None:
     w.vanished_cells = (van > 0).reshape(h, wd)
 
 
-def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Chang et al.'s eq. 2 against an older frame (:mod:`.multiframe`): ``(N,)`` bool, keypoints found by
-    guided LK more than ``reprojection_px`` from their static prediction where that frame saw them."""
+def _start_older_frame_lk(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, ok: np.ndarray):
+    """The guided LK pass of :func:`_older_frame_2d_test`, started in the screener's worker thread
+    (:func:`~.epipolar.track_lk_async`): ``(future, idx, uv_j)`` (keypoints tracked and their static
+    predictions in the older frame), or None when there is nothing to track."""
     cfg = w.config.multiframe
-    n = w.n
-    moved = np.zeros(n, bool)
     if cfg.lk_offset <= 0 or not refs:
-        return moved
+        return None
     target = max(w.frame.index - cfg.lk_offset, -1)
     past = min(refs, key=lambda f: abs(f.index - target))
     T_j_w = se3_inv(past.T_w_c)
@@ -505,13 +505,29 @@ def _older_frame_2d_test(w: FrameWork, refs: list[PastFrame], X_w: np.ndarray, o
         seen = w.camera.in_image(uv_j, 8) & (np.abs(zm - z_j) <= tau) & flat
     idx = np.flatnonzero(ok)[seen]
     if len(idx) == 0:
+        return None
+    uv_j = uv_j[seen]
+    future = track_lk_async(past.gray, w.gray, w.uv[idx], w.config.lk, guess=uv_j)
+    return future, idx, uv_j
+
+
+def _older_frame_2d_test(w: FrameWork, X_w: np.ndarray, ok: np.ndarray, started) -> np.ndarray:
+    """Chang et al.'s eq. 2 against an older frame (:mod:`.multiframe`): ``(N,)`` bool, keypoints found by
+    guided LK (``started``: :func:`_start_older_frame_lk`) more than ``reprojection_px`` from their static
+    prediction where that frame saw them. Timings: ``lk_older`` the LK pass, ``lk_older_wait`` how long the
+    stage waited for it."""
+    cfg = w.config.multiframe
+    n = w.n
+    moved = np.zeros(n, bool)
+    if started is None:
         return moved
+    future, idx, uv_j = started
     t0 = time.perf_counter()
-    uv_lk, tracked = track_lk(past.gray, w.gray, w.uv[idx], w.config.lk, guess=uv_j[seen])
-    w.timings["lk_older"] = _ms(t0)
+    (uv_lk, tracked), w.timings["lk_older"] = future.result()
+    w.timings["lk_older_wait"] = _ms(t0)
     err = np.full(n, np.nan)
     r_old = np.full((n, 2), np.nan)
-    r_old[idx[tracked]] = uv_lk[tracked] - uv_j[seen][tracked]
+    r_old[idx[tracked]] = uv_lk[tracked] - uv_j[tracked]
     err = np.linalg.norm(r_old, axis=1)
     w.values["older_reprojection_px"] = err
     with np.errstate(invalid="ignore"):

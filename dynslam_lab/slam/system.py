@@ -333,6 +333,7 @@ class System:
             # screeners that judge against the map and earlier frames get the system's knowledge
             extra = {"context": self._screening_context(feats, float(frame.timestamp))} if getattr(self.screener, "uses_context", False) else {}
             table = self.screener.screen(frame, feats.uv, detections, **extra)
+            self.tracker.reference_start = self._reference_start(extra.get("context"))
             t["screen"] = 1e3 * (time.perf_counter() - t0)
             dynamic = np.asarray(table.dynamic, bool).reshape(-1)
             if len(dynamic) != len(feats):
@@ -341,6 +342,18 @@ class System:
             if moved is not None and len(moved):
                 self.map.remove_points(moved[self.map.alive[moved]])
         return dynamic, table
+
+    def _reference_start(self, context: ScreeningContext | None):
+        """The screener's reference pose of the frame as tracking's start (``tracking.start_from_reference``):
+        ``(T_c_w, keypoint indices, map point ids)`` of its inlier matches to the local map, or None when
+        the screener refined no pose on the map (no context, no prediction, too few matches)."""
+        ref = getattr(self.screener, "last_reference", None)
+        if context is None or ref is None or ref.source != "map" or not self.config.tracking.start_from_reference:
+            return None
+        if ref.room or ref.surface_moved.any():  # a surface moved against the rest: let the motion model decide
+            return None
+        kp = np.flatnonzero(ref.inliers)
+        return ref.T_c_w, kp, context.map_ids[ref.map_index[kp]]
 
     def _record_region(self, frame: Frame, table: Any) -> None:
         """Keep the screened region of this frame as the prior of frame ``index + orb.prior_lag``, and

@@ -14,6 +14,10 @@ For each new frame, with only the keypoints the screening stage judged static:
    second candidate on any level (``motion_ratio``), a depth-consistency gate
    (``match_depth_tolerance``), and a second search in a tight window around the pose refined from
    the first matches (``motion_refine_radius``).
+   **From the screener's reference pose** (ours, ``start_from_reference``, on by default): with a
+   geometric screener, the frame was already matched to the local map around the same prediction and its
+   pose refined on the static matches (:mod:`dynslam_lab.dynamic.reference_pose`, DynaSLAM's "low-cost
+   tracking"); tracking takes that pose and those matches and goes to step 4 (the same work not done twice).
 2. **Reference keyframe** fallback: match the descriptors of the frame to those of the
    reference keyframe's map points (ratio 0.7; ORB-SLAM2 uses its bag of words here) and
    estimate the pose by **PnP-RANSAC** (``cv2.solvePnPRansac``).
@@ -163,6 +167,7 @@ class TrackingConfig:
     dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
     joint_position_sigma: float = 0.0  # m; a frame the features tracked is refined with the dense term too ("joint") when its feature pose leaves the camera centre this uncertain (optimize.pose_uncertainty, 1 px noise) or more, while "weak"/"auto" engage (static scene); 0 = off (the default: it trades loop_pattern's ATE for loop_flat's); tried 0.0025; ours, docs/tracking.md "Weak feature poses: features and depth together"
     joint_rotation_deg: float = 0.0  # deg; same for the orientation; 0 = off; tried 0.05; ours
+    start_from_reference: bool = True  # with a screener that refined the frame's pose on the local map (the reference pose, dynamic.reference_pose), track the local map from that pose and its inlier matches instead of the motion-model search and refinement (the same matching and refinement done once; DynaSLAM's "low-cost tracking" feeds its tracking the same way); ours, docs/speed.md "Tracking from the reference pose"
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
     def __post_init__(self) -> None:
@@ -195,7 +200,7 @@ class TrackingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second"):
+        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second", "start_from_reference"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in at_least_one:
@@ -288,6 +293,9 @@ class Tracker:
         # scene static (ours): the index of the last frame with more than static_scene_max_dynamic of
         # its keypoints judged dynamic.
         self.last_dynamic_frame = -(10**9)
+        # The screener's reference pose of the frame being tracked (set by the System before track):
+        # (T_c_w, keypoint indices, map point ids of its inlier matches), or None.
+        self.reference_start: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # -------------------------------------------------------------- helpers
     def depth_sigma(self, z: np.ndarray) -> np.ndarray:
@@ -382,6 +390,29 @@ class Tracker:
                 n = self._optimize(frame, T1)
         self._discard_outliers(frame)
         return n >= cfg.min_track_inliers
+
+    def start_from_reference(self, frame: SlamFrame) -> bool:
+        """Start the frame at the screener's reference pose (:attr:`reference_start`, ``start_from_reference``;
+        ours): the screener already matched the local map's points around the constant-velocity prediction
+        and refined the pose on them robustly (:func:`~dynslam_lab.dynamic.reference_pose.map_reference_pose`),
+        which is what the motion model does with the last frame's points. Its inlier matches on keypoints
+        judged static become the frame's matches, its pose the frame's pose; the local map search and
+        motion-only BA that follow (:meth:`track_local_map`) then refine both as after the motion model.
+        False (the motion model runs) without a reference pose or with fewer than ``min_track_inliers``
+        such matches."""
+        start, self.reference_start = self.reference_start, None
+        if not self.cfg.start_from_reference or start is None:
+            return False
+        T_c_w, kp, ids = start
+        keep = frame.static[kp] & self.map.alive[ids]
+        if int(keep.sum()) < self.cfg.min_track_inliers:
+            return False
+        self.predicted_T_c_w = self.predict_pose(frame.timestamp)
+        frame.map_point_ids[:] = -1
+        frame.map_point_ids[kp[keep]] = ids[keep]
+        frame.outlier[:] = False
+        frame.T_w_c = se3_inv(T_c_w)
+        return True
 
     def _match_last_frame(self, frame: SlamFrame, T_pred: np.ndarray, min_matches: int) -> tuple[np.ndarray, np.ndarray] | None:
         """Project the last frame's matched points with ``T_pred`` and search them in ``frame`` (radius
@@ -744,9 +775,12 @@ class Tracker:
         return True
 
     def _track_features(self, frame: SlamFrame) -> bool:
-        """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map."""
+        """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map;
+        the screener's reference pose in place of the motion model when there is one (:meth:`start_from_reference`)."""
         cfg = self.cfg
-        if self.velocity is not None and self.track_motion_model(frame):
+        if self.velocity is not None and self.start_from_reference(frame):
+            ok, self.method = True, "reference_pose"
+        elif self.velocity is not None and self.track_motion_model(frame):
             ok, self.method = True, "motion_model"
         else:
             frame.map_point_ids[:] = -1

@@ -54,6 +54,17 @@ def test_refinement_recovers_the_pose_like_opencv_and_ignores_a_moved_third():
     assert _pose_error(T_ls, T_TRUE)[0] > 3 * t_err
 
 
+def test_points_behind_the_camera_are_left_out_of_the_refinement():
+    X_w, _ = _map()
+    uv, _ = CAM.project(transform_points(T_TRUE, X_w))
+    uv = uv + np.random.default_rng(5).normal(0, 0.3, uv.shape)
+    T0 = make_pose(so3_exp(np.array([0.002, 0.0, -0.002])), np.array([0.005, 0.0, 0.0])) @ T_TRUE
+    behind = transform_points(se3_inv(T_TRUE), transform_points(T_TRUE, X_w[:20]) * np.array([1.0, 1.0, -1.0]))
+    X_all, uv_all = np.vstack([behind, X_w]), np.vstack([uv[:20], uv])
+    np.testing.assert_allclose(refine_pose(T0, X_all, uv_all, CAM.K), refine_pose(T0, X_w, uv, CAM.K), atol=1e-12)
+    assert np.array_equal(refine_pose(T0, behind, uv[:20], CAM.K), T0)  # none in front: the start pose back
+
+
 def test_sigma_weights_down_coarse_keypoints():
     X_w, _ = _map()
     uv, _ = CAM.project(transform_points(T_TRUE, X_w))

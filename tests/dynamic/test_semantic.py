@@ -60,3 +60,22 @@ def test_table_dataframe_and_validation():
                       dynamic=np.zeros(3, bool), reason=np.full(3, ""))
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         KeypointTable.blank(np.zeros((3, 3)))
+
+
+def test_mask_owner_is_the_best_scoring_mask_of_many():
+    """Many overlapping masks (an oracle gives ~70 a frame): each keypoint's instance is the highest-scoring
+    mask containing its pixel, as Detections.instance_at (an independent lookup) finds it."""
+    rng = np.random.default_rng(3)
+    h, w, d = 60, 80, 40
+    masks = np.zeros((d, h, w), bool)
+    boxes = np.zeros((d, 4))
+    for k in range(d):
+        x0, y0 = rng.integers(0, w - 10), rng.integers(0, h - 10)
+        x1, y1 = x0 + rng.integers(5, 30), y0 + rng.integers(5, 30)
+        masks[k, y0:y1, x0:x1] = rng.random((min(y1, h) - y0, min(x1, w) - x0)) < 0.7
+        boxes[k] = (x0, y0, x1, y1)
+    dets = Detections(boxes, rng.random(d), np.zeros(d, np.int64), (h, w), masks=masks)
+    uv = rng.uniform(0, [w - 1, h - 1], (500, 2))
+    r = semantic_prior(uv, dets, SemanticConfig())
+    assert (r.instance >= 0).sum() > 100
+    np.testing.assert_array_equal(r.instance, dets.instance_at(uv))
