@@ -417,9 +417,13 @@ class Map:
         cached = self._covis.get(kf_id)
         if cached is None:
             kf = self.keyframes[kf_id]
-            ids = kf.map_point_ids[kf.map_point_ids >= 0]
-            cached = self.keyframes_observing(ids)
-            cached.pop(kf_id, None)
+            # the observer column of the live rows of the keyframe's points, counted by keyframe id
+            # (ids are small integers): no sort of the rows, no per-keyframe Python loop
+            observers = self._t[0, self._rows_of(kf.map_point_ids[kf.map_point_ids >= 0])]
+            counts = np.bincount(observers, minlength=kf_id + 1) if len(observers) else np.zeros(kf_id + 1, np.int64)
+            counts[kf_id] = 0
+            others = np.flatnonzero(counts)
+            cached = dict(zip(others.tolist(), counts[others].tolist()))
             self._covis[kf_id] = cached
         return dict(cached)
 
