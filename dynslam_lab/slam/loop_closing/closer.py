@@ -194,7 +194,7 @@ class LoopCloser:
     @property
     def _correcting(self) -> bool:
         """A pose-graph or global-BA correction is pending (verification jobs do not count)."""
-        return any(kind != "verify" for kind, _ in self.corrector.tags())
+        return self.corrector.pending("pose_graph") + self.corrector.pending("global_ba") > 0
 
     def _verify(self, query, view, candidates: list[int], epoch: int) -> tuple[int, CandidateCheck | None, list, tuple]:
         """Worker: verify the candidates in order on the frozen view; the first accepted wins.
