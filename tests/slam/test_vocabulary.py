@@ -258,6 +258,12 @@ def test_database_scores_match_direct_scores_and_candidates():
     assert set(ids) == {i for i, v in enumerate(vecs) if len(np.intersect1d(q.words, v.words))}
     db.remove(5)
     assert 5 not in db.scores(q)[0]
+    # prune by the map's keyframes (a dict) or any container: the others go, removed ones stay gone
+    db.prune({k: None for k in range(12) if k not in (2, 7)})
+    assert db.ids() == [k for k in range(12) if k not in (2, 5, 7)] and 7 not in db
+    db.prune(set(range(12)) - {9})
+    assert db.ids() == [k for k in range(12) if k not in (2, 5, 7, 9)] and len(db) == 8
+    assert set(db.scores(q)[0]).isdisjoint({2, 5, 7, 9})
     # the query itself, excluded, is never a candidate; a near copy of it is the best
     near = BowVector(q.words, q.weights)
     db.add(20, near)
