@@ -78,6 +78,11 @@ class _FrozenKeyframes(Mapping):
             view = self._views[kf_id] = KeyframeView(self._kf[kf_id], None, self._pose[kf_id])
         return view
 
+    def centres(self, ids) -> np.ndarray:
+        """``(K, 3)`` frozen camera centres of keyframes ``ids`` (no view made: path lengths read
+        every keyframe between the candidate and the query)."""
+        return np.array([self._pose[k][:3, 3] for k in ids]).reshape(-1, 3)
+
     def __iter__(self) -> Iterator[int]:
         return iter(self._kf)
 
