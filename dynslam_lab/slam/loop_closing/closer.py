@@ -152,8 +152,9 @@ class LoopCloser:
         """Detect loop candidates for a new keyframe (already inserted in ``map``) and hand them to verification.
 
         The frame loop only queries the database and checks consistency; the consistent candidates
-        (the ``config.max_verified`` best of them, by accumulated score, when that is not 0) are verified on a frozen view of the map (:func:`.frozen.freeze_for_verification`) by the
-        worker, and :meth:`poll` starts the correction of an accepted one. The keyframe is added to
+        (the ``config.max_verified`` best of them by accumulated score, all when it is 0) are verified
+        on a frozen view of the map (:func:`.frozen.freeze_for_verification`) by the worker, and
+        :meth:`poll` starts the correction of an accepted one. The keyframe is added to
         the database whatever the outcome. No loop is searched while a correction is pending.
         With ``config.background`` False verification and correction run at once and the loop
         accepted for this keyframe (applied) is returned; else None (:meth:`poll` returns it later).
