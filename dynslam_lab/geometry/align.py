@@ -41,7 +41,8 @@ import numpy as np
 
 from .se3 import make_pose, quat_xyzw_to_matrix, transform_points
 
-__all__ = ["Alignment", "AlignmentError", "umeyama_alignment", "horn_alignment", "rigid_alignment_batch", "ransac_rigid_3d"]
+__all__ = ["Alignment", "AlignmentError", "umeyama_alignment", "horn_alignment", "rigid_alignment_batch",
+           "rigid_inliers_batch", "ransac_rigid_3d"]
 
 
 class AlignmentError(ValueError):
@@ -231,6 +232,66 @@ def rigid_alignment_batch(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.
     return R, t, ok
 
 
+def rigid_inliers_batch(R: np.ndarray, t: np.ndarray, P: np.ndarray, Q: np.ndarray,
+                        tolerance: np.ndarray | float) -> np.ndarray:
+    """``(I, N)`` bool: ``|R_i P_n + t_i - Q_n| < tolerance_n`` for every hypothesis ``(R_i (3, 3), t_i (3,))``
+    of ``R (I, 3, 3), t (I, 3)`` and every pair ``P_n -> Q_n`` of ``P, Q (N, 3)``.
+
+    The squared residual expands as
+
+    .. math::
+
+        |R p + t - q|^2 = |p|^2 + |q|^2 + |t|^2 - 2\, t \cdot q + 2\, (R^T t) \cdot p
+                          - 2 \operatorname{vec}(R) \cdot \operatorname{vec}(q p^T) ,
+
+    so all ``I x N`` of them are one ``(I, 15) @ (15, N)`` matrix product plus row and column terms
+    (an order of magnitude faster than forming the ``(I, N, 3)`` transformed points, the einsum this
+    replaces: 93 -> 6.5 ms at 1000 x 600, minimum of 10 on a loaded machine). The expansion loses a few
+    ulps of ``(|p| + |q| + |t|)^2 + tolerance^2`` to cancellation, so the pairs whose ``d^2`` lies within
+    ``64 eps`` of that of ``tolerance^2`` (a handful) are decided again by the distance test as it was (transformed point
+    by ``einsum``, ``norm``, ``< tolerance``): the sets are those of the distance test, strict at the
+    boundary (a residual of exactly the tolerance is an outlier). Pairs with non-finite values are
+    never inliers.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    P = np.asarray(P, dtype=np.float64)
+    Q = np.asarray(Q, dtype=np.float64)
+    n_hyp, n = len(R), len(P)
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (n,))
+    if n_hyp == 0 or n == 0:
+        return np.zeros((n_hyp, n), bool)
+    # r = d^2 - tolerance^2 as one (I, 17) @ (17, N) product: the row terms |t|^2 and the column
+    # terms |p|^2 + |q|^2 - tolerance^2 ride along as a column of a (row of b) against ones
+    a = np.empty((n_hyp, 17))
+    a[:, :3] = -2.0 * t
+    a[:, 3:6] = 2.0 * np.einsum("iyx,iy->ix", R, t)  # R^T t
+    a[:, 6:15] = -2.0 * R.reshape(n_hyp, 9)
+    a[:, 15] = tt = np.einsum("ix,ix->i", t, t)
+    a[:, 16] = 1.0
+    b = np.empty((17, n))
+    b[:3] = Q.T
+    b[3:6] = P.T
+    b[15] = 1.0
+    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite pair gives nan: never an inlier
+        b[6:15] = (Q[:, :, None] * P[:, None, :]).reshape(n, 9).T  # vec(q p^T), row-major as vec(R)
+        pq = np.einsum("nx,nx->n", P, P) + np.einsum("nx,nx->n", Q, Q)
+        b[16] = pq - tol * tol
+        r = a @ b
+    # bound of the expansion's rounding error: ulps of the sum of its terms' magnitudes
+    big = np.sqrt(pq.max(initial=0.0, where=np.isfinite(pq)))
+    tol2 = float(np.max(tol * tol, initial=0.0, where=np.isfinite(tol)))
+    margin = ((64.0 * np.finfo(np.float64).eps) * ((2.0 * big + np.sqrt(tt)) ** 2 + tol2 + 1.0))[:, None]
+    inl = r < -margin
+    maybe = r < margin
+    rows = np.flatnonzero(np.count_nonzero(maybe, axis=1) != np.count_nonzero(inl, axis=1))
+    if len(rows):  # the distance test itself for the pairs the expansion cannot decide
+        i, nn = np.nonzero(maybe[rows] & ~inl[rows])
+        ii = rows[i]
+        inl[ii, nn] = np.linalg.norm(np.einsum("kxy,ky->kx", R[ii], P[nn]) + t[ii] - Q[nn], axis=1) < tol[nn]
+    return inl
+
+
 def ransac_rigid_3d(
     X_src: np.ndarray,
     X_dst: np.ndarray,
@@ -241,7 +302,8 @@ def ransac_rigid_3d(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform ``T (4, 4)`` with ``X_dst ~ R X_src + t`` by RANSAC over 3-point samples.
 
-    All ``n_iterations`` minimal samples are solved at once (:func:`rigid_alignment_batch`) and scored on all pairs at once; the best hypothesis
+    All ``n_iterations`` minimal samples are solved at once (:func:`rigid_alignment_batch`) and scored on all
+    pairs at once (:func:`rigid_inliers_batch`: one matrix product); the best hypothesis
     (most inliers) is refined by :func:`umeyama_alignment` on its inliers, ``refine_rounds`` times.
 
     Parameters
@@ -269,13 +331,13 @@ def ransac_rigid_3d(
     rng = np.random.default_rng(rng)
     samples = np.argpartition(rng.random((n_iterations, n)), 2, axis=1)[:, :3]  # 3 distinct per row
     R, t, ok = rigid_alignment_batch(P[samples], Q[samples])
-    err = np.linalg.norm(np.einsum("ixy,ny->inx", R, P) + t[:, None, :] - Q[None], axis=2)  # (I, N)
-    counts = np.where(ok, (err < tol).sum(axis=1), -1)
+    inliers = rigid_inliers_batch(R, t, P, Q, tol)  # (I, N): |R_i P_n + t_i - Q_n| < tol_n
+    counts = np.where(ok, np.count_nonzero(inliers, axis=1), -1)
     best = int(np.argmax(counts))
     if counts[best] < 3:
         return none
     T = make_pose(R[best], t[best])
-    inl = err[best] < tol
+    inl = inliers[best]
     for _ in range(refine_rounds):
         try:
             a = umeyama_alignment(P[inl], Q[inl])

@@ -99,6 +99,7 @@ class KeyframeDatabase:
         self.reindex_ratio = 0.25  # re-index when new entries exceed this share of the indexed (ours)
         self._bows: dict[int, BowVector] = {}
         self._removed: set[int] = set()
+        self._dense = np.zeros(self.n_words)  # scratch of scores(): the query as a dense vector
 
     # ------------------------------------------------------------------ content
     def __len__(self) -> int:
@@ -149,9 +150,12 @@ class KeyframeDatabase:
 
     def prune(self, live: Container[int]) -> None:
         """Forget every keyframe not in ``live`` (the map's keyframes: the culled ones go)."""
-        for kf_id in self.ids():
-            if kf_id not in live:
-                self.remove(kf_id)
+        if hasattr(live, "keys"):  # a dict of keyframes: one set difference, no Python loop over the ids
+            gone = self._bows.keys() - live.keys() - self._removed
+        else:
+            gone = [kf_id for kf_id in self.ids() if kf_id not in live]
+        for kf_id in gone:
+            self.remove(kf_id)
 
     def remove(self, kf_id: int) -> None:
         """Forget a keyframe (culled); its entries are skipped by later queries."""
@@ -178,9 +182,10 @@ class KeyframeDatabase:
         vals = np.minimum(np.repeat(bow.weights, length), self._post_weight[idx])
         # recent entries, not indexed yet: a scan with a lookup table over the vocabulary
         if self._indexed < n:
-            q = np.zeros(self.n_words)
+            q = self._dense  # all zeros between queries
             q[bow.words] = bow.weights
             qw = q[self._word[self._indexed : n]]
+            q[bow.words] = 0.0
             hit = np.flatnonzero(qw > 0)
             kf = np.concatenate([kf, self._kf[self._indexed + hit]])
             vals = np.concatenate([vals, np.minimum(qw[hit], self._weight[self._indexed + hit])])

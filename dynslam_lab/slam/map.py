@@ -81,8 +81,9 @@ class Map:
         self._row_of: dict[int, np.ndarray] = {}
         self._dirty: set[int] = set()  # keyframes whose map_point_ids may have changed
         self._all_dirty = False
-        # Covisibility dictionaries computed so far; a change drops those of the keyframes it touches.
-        self._covis: dict[int, dict[int, int]] = {}
+        # Covisibility computed so far, per keyframe: {other: weight}, and the others by decreasing
+        # weight (ties: lower id first) with their weights; a change drops those of the keyframes it touches.
+        self._covis: dict[int, tuple[dict[int, int], list[int], np.ndarray]] = {}
         self._next_kf_id = 0
         # Culled keyframes: id -> (parent id, T_parent_kf), so frames anchored to them keep a pose.
         self.removed_anchor: dict[int, tuple[int, np.ndarray]] = {}
@@ -411,23 +412,35 @@ class Map:
         u, c = np.unique(kf, return_counts=True)
         return {int(a): int(b) for a, b in zip(u, c)}
 
-    def covisibility(self, kf_id: int) -> dict[int, int]:
-        """``{other keyframe id: number of shared map points}`` for keyframe ``kf_id``."""
+    def _covisibility_entry(self, kf_id: int) -> tuple[dict[int, int], list[int], np.ndarray]:
+        """The cached covisibility of ``kf_id`` (computed when missing): ``{other: weight}``, the others
+        by decreasing weight then increasing id, and those weights."""
         self._sync()
         cached = self._covis.get(kf_id)
         if cached is None:
             kf = self.keyframes[kf_id]
-            ids = kf.map_point_ids[kf.map_point_ids >= 0]
-            cached = self.keyframes_observing(ids)
-            cached.pop(kf_id, None)
+            # the observer column of the live rows of the keyframe's points, counted by keyframe id
+            # (ids are small integers): no sort of the rows, no per-keyframe Python loop
+            observers = self._t[0, self._rows_of(kf.map_point_ids[kf.map_point_ids >= 0])]
+            counts = np.bincount(observers, minlength=kf_id + 1) if len(observers) else np.zeros(kf_id + 1, np.int64)
+            counts[kf_id] = 0
+            others = np.flatnonzero(counts)
+            weights = counts[others]
+            order = np.lexsort((others, -weights))
+            cached = (dict(zip(others.tolist(), weights.tolist())), others[order].tolist(), weights[order])
             self._covis[kf_id] = cached
-        return dict(cached)
+        return cached
+
+    def covisibility(self, kf_id: int) -> dict[int, int]:
+        """``{other keyframe id: number of shared map points}`` for keyframe ``kf_id``."""
+        return dict(self._covisibility_entry(kf_id)[0])
 
     def best_covisibles(self, kf_id: int, n: int | None = None, min_weight: int = 1) -> list[int]:
-        """Covisible keyframe ids by decreasing weight (at most ``n``; weight ``>= min_weight``)."""
-        cov = self.covisibility(kf_id)
-        ids = sorted((k for k, w in cov.items() if w >= min_weight), key=lambda k: (-cov[k], k))
-        return ids if n is None else ids[:n]
+        """Covisible keyframe ids by decreasing weight, ties by increasing id (at most ``n``; weight
+        ``>= min_weight``). The order is cached with the covisibility."""
+        _, order, weights = self._covisibility_entry(kf_id)
+        m = len(order) if min_weight <= 1 else int(np.count_nonzero(weights >= min_weight))
+        return order[: m if n is None else min(m, max(int(n), 0))]
 
     # ------------------------------------------------------------- geometry
     def update_geometry(self, ids: np.ndarray) -> None:

@@ -47,6 +47,7 @@ varied imagery by the recipe ``resources/vocabulary_recipe.toml`` (:func:`defaul
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from dataclasses import dataclass
 from importlib import resources
@@ -54,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features.matching import check_descriptors, hamming_distance, hamming_words
+from ..features.matching import check_descriptors, hamming_distance
 
 __all__ = [
     "VocabularyConfig",
@@ -271,28 +272,50 @@ class Vocabulary:
         return f"Vocabulary(k={self.branching}, depth={self.depth}, words={self.n_words}, images={self.n_images})"
 
     # ------------------------------------------------------------------ lookup
+    @functools.cached_property
+    def _descent_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Tables of the vectorised descent, built once per vocabulary, one row per inner node plus a
+        last row shared by the leaves: ``row (M,)`` each node's row; ``child (R + 1, k)`` the child in
+        each column (a missing child repeats the first one); ``penalty (R + 1, k)`` int32 added to the
+        distance of the missing children (never the nearest); ``centres (R + 1, k, 4)`` uint64 the
+        children's centres as 64-bit words (3 MB for the default vocabulary's ~10 k inner nodes)."""
+        ch = self.children.astype(np.int64)
+        inner = np.flatnonzero(ch[:, 0] >= 0)
+        r = len(inner)
+        row = np.full(len(ch), r, np.int64)
+        row[inner] = np.arange(r)
+        child = np.zeros((r + 1, ch.shape[1]), np.int64)
+        c = ch[inner]
+        child[:r] = np.where(c < 0, c[:, :1], c)
+        penalty = np.zeros((r + 1, ch.shape[1]), np.int32)
+        penalty[:r] = np.where(c < 0, 1 << 20, 0)
+        centres = np.ascontiguousarray(self.centres).view(np.uint64)[child]
+        return row, child, penalty, centres
+
     def transform_nodes(self, descriptors: np.ndarray, level: int | None = None) -> np.ndarray:
         """Node ``(N,)`` reached by each descriptor, stopping at tree ``level`` (None: the leaf).
 
         The greedy descent of DBoW2: at each node go to the child with the nearest centre
-        (ties: the first child). Vectorised over descriptors, one step per tree level.
+        (ties: the first child). Vectorised over descriptors, one step per tree level: the
+        children's centres of every descriptor's node are gathered at once (``(N, k, 4)`` 64-bit
+        words, :attr:`_descent_tables`), their Hamming distances are popcounts of the XOR, the
+        nearest an argmin; a descriptor that reached a leaf stays there.
         """
         desc = check_descriptors(descriptors, "Vocabulary.transform")
-        node = np.zeros(len(desc), np.int64)
         stop = self.depth if level is None else int(level)
         if not 0 <= stop <= self.depth:
             raise ValueError(f"Vocabulary.transform_nodes: level must be in [0, {self.depth}], got {level}")
-        d64 = desc.view(np.uint64)
-        c64 = self.centres.view(np.uint64)
-        for _ in range(stop):
-            ch = self.children[node]  # (N, k)
-            inner = ch[:, 0] >= 0
-            if not inner.any():
-                break
-            chi = ch[inner]
-            dist = hamming_words(d64[inner][:, None, :], c64[np.maximum(chi, 0)])
-            dist[chi < 0] = np.iinfo(np.int32).max
-            node[inner] = chi[np.arange(len(chi)), np.argmin(dist, axis=1)]
+        node = np.zeros(len(desc), np.int64)
+        if len(desc) == 0:
+            return node
+        row_of, child, penalty, centres = self._descent_tables
+        leaf_row = len(child) - 1
+        d64 = np.ascontiguousarray(desc).view(np.uint64)[:, None, :]  # (N, 1, 4)
+        for _ in range(stop):  # one step per tree level, all descriptors at once
+            row = row_of[node]
+            bits = np.bitwise_count(centres[row] ^ d64).astype(np.int32)  # (N, k, 4) popcounts
+            dist = bits[..., 0] + bits[..., 1] + bits[..., 2] + bits[..., 3] + penalty[row]
+            node = np.where(row == leaf_row, node, child[row, np.argmin(dist, axis=1)])
         return node
 
     def transform(self, descriptors: np.ndarray) -> np.ndarray:

@@ -289,7 +289,31 @@ def test_no_loop_without_revisit_even_with_dynamic_clutter():
     assert len(closer.database) == len(mp.keyframes)
 
 
+def test_max_verified_verifies_the_best_candidates_only(monkeypatch):
+    """With ``max_verified = 1`` each keyframe hands verification the first (best accumulated score) of
+    the consistent candidates that ``max_verified = 0`` hands over in full, and the same loop is closed."""
+    lists = {}
+    for mv in (0, 1):
+        seen = lists[mv] = []
+        orig = LoopCloser._verify
+
+        def spy(self, query, view, candidates, epoch, seen=seen, orig=orig):
+            seen.append((query.id, list(candidates)))
+            return orig(self, query, view, candidates, epoch)
+
+        monkeypatch.setattr(LoopCloser, "_verify", spy)
+        cfg = LoopClosingConfig(global_ba=False, background=False, max_verified=mv)
+        closer, _, _, _, results = run_loop_scene(400.0, 44, config=cfg)
+        lists[mv, "loops"] = [(r.query_kf_id, r.loop_kf_id) for r in results]
+        monkeypatch.setattr(LoopCloser, "_verify", orig)
+    assert any(len(c) > 1 for _, c in lists[0])  # the scene has keyframes with several consistent candidates
+    assert [(q, c[:1]) for q, c in lists[0]] == lists[1]
+    assert lists[0, "loops"] == lists[1, "loops"] and len(lists[1, "loops"]) == 1
+
+
 def test_config_errors():
+    with pytest.raises(ValueError, match="max_verified"):
+        LoopClosingConfig(max_verified=-1)
     with pytest.raises(ValueError, match="match_ratio"):
         LoopClosingConfig(match_ratio=1.5)
     with pytest.raises(ValueError, match="min_inliers"):

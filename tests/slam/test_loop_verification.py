@@ -162,6 +162,8 @@ def test_verification_on_a_frozen_view_equals_the_live_map_and_ignores_later_cha
     assert sorted(view.keyframes) == frozen_ids
     for k in frozen_ids:
         np.testing.assert_array_equal(view.keyframes[k].center, centres[k])
+    np.testing.assert_array_equal(view.keyframes.centres(frozen_ids), np.array([centres[k] for k in frozen_ids]))
+    assert again.stats["path"] == live.stats["path"] > 0  # the path length from the frozen centres
     # a point outside the frozen loop groups is never read silently
     with pytest.raises(KeyError):
         view.xyz[np.array([mp.n_points_total + 10])]

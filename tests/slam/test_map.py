@@ -143,7 +143,13 @@ def _check_index(mp: Map, rng) -> None:
         assert rows == _brute_observations(mp, q)
         assert all(octave[i] == mp.keyframes[int(kf[i])].octave[kp[i]] for i in range(len(kf)))
     for kid in mp.keyframe_ids():
-        assert mp.covisibility(kid) == _brute_covisibility(mp, kid)
+        brute = _brute_covisibility(mp, kid)
+        assert mp.covisibility(kid) == brute
+        order = sorted(brute, key=lambda k: (-brute[k], k))
+        assert mp.best_covisibles(kid) == order
+        assert mp.best_covisibles(kid, 3) == order[:3] and mp.best_covisibles(kid, 0) == []
+        assert mp.best_covisibles(kid, None, 3) == [k for k in order if brute[k] >= 3]
+        assert mp.best_covisibles(kid, 2, 2) == [k for k in order if brute[k] >= 2][:2]
     ids = np.arange(mp.n_points_total)
     brute_n = np.zeros(mp.n_points_total, np.int64)
     for kf in mp.keyframes.values():

@@ -112,6 +112,50 @@ def test_transform_is_greedy_descent():
     np.testing.assert_array_equal(lvl1, anc)
 
 
+def _greedy_descent(voc: Vocabulary, desc: np.ndarray) -> np.ndarray:
+    """Reference: one descriptor at a time, the child of least Hamming distance (first on ties)."""
+    out = np.zeros(len(desc), np.int64)
+    for i, q in enumerate(desc):
+        node = 0
+        while voc.children[node, 0] >= 0:
+            ch = voc.children[node][voc.children[node] >= 0]
+            d = [int(np.unpackbits(q ^ voc.centres[c]).sum()) for c in ch]
+            node = int(ch[int(np.argmin(d))])
+        out[i] = node
+    return out
+
+
+def test_default_vocabulary_lookup_is_greedy_descent():
+    """The vectorised lookup on the shipped vocabulary (depth 5, k 10, leaves at several levels)
+    equals the plain descent: random descriptors, noisy copies of leaf centres (deep paths), copies
+    of inner-node centres (ties between siblings are likely), and exact shallow-leaf centres."""
+    voc = default_vocabulary()
+    rng = np.random.default_rng(7)
+    inner = np.flatnonzero(voc.children[:, 0] >= 0)[1:]
+    leaves = voc.word_node
+    shallow = leaves[voc.level[leaves] < voc.depth]
+    assert len(shallow)  # the tree has leaves above the last level: the case the descent must keep
+    sets = [
+        rng.integers(0, 256, (150, 32), dtype=np.uint8),
+        voc.centres[rng.choice(leaves, 150)],
+        voc.centres[rng.choice(inner, 100)],
+        voc.centres[rng.choice(shallow, 50)],
+    ]
+    noisy, _ = noisy_copies(voc.centres[rng.choice(leaves, 150)], 1, 10, rng)
+    desc = np.concatenate([*sets, noisy])
+    got = voc.transform_nodes(desc)
+    np.testing.assert_array_equal(got, _greedy_descent(voc, desc))
+    assert np.all(voc.node_word[got] >= 0)
+    np.testing.assert_array_equal(voc.transform(desc), voc.node_word[got])
+    # a stop at level 2: the level-2 ancestor (or a shallower leaf)
+    lvl2 = voc.transform_nodes(desc, level=2)
+    anc = got.copy()
+    while np.any(voc.level[anc] > 2):
+        anc = np.where(voc.level[anc] > 2, voc.parent[anc], anc)
+    np.testing.assert_array_equal(lvl2, anc)
+    assert len(voc.transform_nodes(np.zeros((0, 32), np.uint8))) == 0
+
+
 def test_bow_weights_and_l1_score_by_hand():
     voc = Vocabulary(
         centres=np.zeros((4, 32), np.uint8),
@@ -214,6 +258,12 @@ def test_database_scores_match_direct_scores_and_candidates():
     assert set(ids) == {i for i, v in enumerate(vecs) if len(np.intersect1d(q.words, v.words))}
     db.remove(5)
     assert 5 not in db.scores(q)[0]
+    # prune by the map's keyframes (a dict) or any container: the others go, removed ones stay gone
+    db.prune({k: None for k in range(12) if k not in (2, 7)})
+    assert db.ids() == [k for k in range(12) if k not in (2, 5, 7)] and 7 not in db
+    db.prune(set(range(12)) - {9})
+    assert db.ids() == [k for k in range(12) if k not in (2, 5, 7, 9)] and len(db) == 8
+    assert set(db.scores(q)[0]).isdisjoint({2, 5, 7, 9})
     # the query itself, excluded, is never a candidate; a near copy of it is the best
     near = BowVector(q.words, q.weights)
     db.add(20, near)

@@ -102,6 +102,11 @@ class LoopCloser:
     loops : accepted loops, in order.
     query_ms : ``(kf_id, ms)`` of every candidate query (BoW + database + consistency).
     stage_ms : ``(kf_id, ms)`` of every ``on_keyframe`` call (the loop stage of the frame loop).
+    stage_parts_ms : ``(kf_id, bow, detect, freeze, cpu)`` ms of every ``on_keyframe`` call: the static
+        BoW vector, database prune + query + consistency (:class:`~.detection.LoopDetector`), the frozen
+        view of the map handed to verification (0 when nothing is verified), all wall-clock, and the
+        CPU time of the calling thread for the whole call (``time.thread_time``: without the waits for
+        the CPU or the GIL that a busy machine or the verification worker add to the wall-clock).
     rejected : ``(query id, candidate id, reason, stats)`` of every candidate that failed verification.
     """
 
@@ -116,6 +121,7 @@ class LoopCloser:
         self.loops: list[LoopResult] = []
         self.query_ms: list[tuple[int, float]] = []
         self.stage_ms: list[tuple[int, float]] = []
+        self.stage_parts_ms: list[tuple[int, float, float, float]] = []
         self.rejected: list[tuple[int, int, str, dict]] = []
         self.errors: list[str] = []
         self._last_loop_kf = -1
@@ -146,8 +152,9 @@ class LoopCloser:
         """Detect loop candidates for a new keyframe (already inserted in ``map``) and hand them to verification.
 
         The frame loop only queries the database and checks consistency; the consistent candidates
-        are verified on a frozen view of the map (:func:`.frozen.freeze_for_verification`) by the
-        worker, and :meth:`poll` starts the correction of an accepted one. The keyframe is added to
+        (the ``config.max_verified`` best of them by accumulated score, all when it is 0) are verified
+        on a frozen view of the map (:func:`.frozen.freeze_for_verification`) by the worker, and
+        :meth:`poll` starts the correction of an accepted one. The keyframe is added to
         the database whatever the outcome. No loop is searched while a correction is pending.
         With ``config.background`` False verification and correction run at once and the loop
         accepted for this keyframe (applied) is returned; else None (:meth:`poll` returns it later).
@@ -155,31 +162,40 @@ class LoopCloser:
         cfg = self.config
         if not cfg.enabled:
             return None
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         bow = self.keyframe_bow(keyframe)
+        t_bow = time.perf_counter()
         self.database.prune(map.keyframes)
         far_enough = keyframe.id >= max(cfg.min_keyframes_between, self._last_loop_kf + cfg.min_keyframes_between)
         n_loops = len(self.loops)
+        t_detect = t_freeze = t_bow
         if not self._correcting and far_enough and len(map.keyframes) > cfg.min_keyframes_between and len(bow):
             accepted = self.detector.detect(keyframe, map, bow)
-            q_ms = 1e3 * (time.perf_counter() - t0)
+            t_detect = t_freeze = time.perf_counter()
+            q_ms = 1e3 * (t_detect - t0)
             self.query_ms.append((int(keyframe.id), q_ms))
+            if cfg.max_verified:  # best accumulated score first (the database's order, kept by consistency)
+                accepted = accepted[: cfg.max_verified]
             if accepted:
                 view = freeze_for_verification(map, keyframe.id, accepted, self.detector.last_covisibility,
                                                cfg.loop_group_size)
+                t_freeze = time.perf_counter()
                 job = (view.keyframes[keyframe.id], view, list(accepted), self._epoch)
                 self.corrector.submit(_timed_verification(self._verify, job), ("verify", (job, q_ms)))
         if keyframe.id not in self.database:
             self.database.add(keyframe.id, bow)
         if not cfg.background and self.busy:
             self.poll(map)
-        self.stage_ms.append((int(keyframe.id), 1e3 * (time.perf_counter() - t0)))
+        t1 = time.perf_counter()
+        self.stage_ms.append((int(keyframe.id), 1e3 * (t1 - t0)))
+        self.stage_parts_ms.append((int(keyframe.id), 1e3 * (t_bow - t0), 1e3 * (t_detect - t_bow),
+                                    1e3 * (t_freeze - t_detect), 1e3 * (time.thread_time() - c0)))
         return self.loops[-1] if len(self.loops) > n_loops else None
 
     @property
     def _correcting(self) -> bool:
         """A pose-graph or global-BA correction is pending (verification jobs do not count)."""
-        return any(kind != "verify" for kind, _ in self.corrector.tags())
+        return self.corrector.pending("pose_graph") + self.corrector.pending("global_ba") > 0
 
     def _verify(self, query, view, candidates: list[int], epoch: int) -> tuple[int, CandidateCheck | None, list, tuple]:
         """Worker: verify the candidates in order on the frozen view; the first accepted wins.

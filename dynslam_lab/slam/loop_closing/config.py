@@ -17,6 +17,7 @@ class LoopClosingConfig:
     enabled: bool = True  # run loop closing at all (``--no-loop`` turns it off)
     # --- detection (ORB-SLAM2 DetectLoop)
     min_keyframes_between: int = 10  # no loop search in the first / after a loop for this many keyframes; ORB-SLAM2: 10
+    max_verified: int = 3  # verify only this many consistent candidates per keyframe, best accumulated score first; 0 = all (ORB-SLAM2: all; ORB-SLAM3 DetectNBestCandidates: 3). 3: the same loops and trajectories as 0 on loop_noise/photo/pattern/flat seeds 0-2 (at most 2 consistent candidates a keyframe there), zero loops without a revisit, the loop stage at 1000 keyframes of the hard case bounded (docs/loop_closing.md "Speed of the loop stage")
     consistency_threshold: int = 2  # consecutive consistent detections; ORB-SLAM2 mnCovisibilityConsistencyTh: 3, ours 2: measured with the low-texture tracking options (tracking.new_point_depth = 8, dense = "auto"; the defaults, engaged while the screening judges the scene static), whose far points make fewer keyframes on the way back, 3 missed the revisit at the end of a loop by one keyframe (docs/loop_closing.md "Unseen scenes: the loop found")
     min_neighbour_weight: int = 15  # covisibility weight of the neighbours giving s_min; ORB-SLAM2 connection threshold: 15
     exclude: str = "covisible"  # keyframes never candidates: "covisible" (any shared point; ours) or "connected" (weight >= 15; ORB-SLAM2)
@@ -68,7 +69,7 @@ class LoopClosingConfig:
                 f"inlier_rel={self.inlier_rel}"
             )
         for name in ("refine_rounds", "min_keyframes_between", "loop_group_size", "neighbour_checks",
-                     "min_neighbour_matches", "global_ba_iterations", "global_ba_min_observations"):
+                     "min_neighbour_matches", "global_ba_iterations", "global_ba_min_observations", "max_verified"):
             if getattr(self, name) < 0:
                 raise ValueError(f"LoopClosingConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 <= self.min_spread <= 1:

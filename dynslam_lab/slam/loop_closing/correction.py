@@ -361,6 +361,7 @@ class LoopCorrector:
         self.background = bool(background)
         self._pool: ThreadPoolExecutor | None = None
         self._pending: list[tuple[Future, object]] = []
+        self._kinds: dict[object, int] = {}  # pending jobs per kind (a tag's first item)
 
     @property
     def busy(self) -> bool:
@@ -370,8 +371,18 @@ class LoopCorrector:
         """Tags of the pending jobs, in submission order."""
         return [tag for _, tag in self._pending]
 
+    @staticmethod
+    def _kind(tag) -> object:
+        return tag[0] if isinstance(tag, tuple) and tag else None
+
+    def pending(self, kind) -> int:
+        """Pending jobs whose tag is a tuple starting with ``kind`` (O(1): counted on submit and poll)."""
+        return self._kinds.get(kind, 0)
+
     def submit(self, fn, tag) -> None:
         """Start ``fn() -> Correction``; ``tag`` comes back with the result."""
+        k = self._kind(tag)
+        self._kinds[k] = self._kinds.get(k, 0) + 1
         if self.background:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="loop-correction")
@@ -390,6 +401,7 @@ class LoopCorrector:
         done = []
         while self._pending and (wait or self._pending[0][0].done()):
             fut, tag = self._pending.pop(0)
+            self._kinds[self._kind(tag)] -= 1
             done.append((fut.result(), tag))
         return done
 

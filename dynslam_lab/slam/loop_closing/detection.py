@@ -77,8 +77,8 @@ class LoopDetector:
     Attributes
     ----------
     last_candidates : the database's candidates for the last keyframe (for notebooks).
-    last_covisibility : keyframe id -> covisibility (``Map.covisibility``) computed for the last
-        query: the query's and every candidate's (what verification is frozen with).
+    last_covisibility : keyframe id -> covisibility (``Map.covisibility``) of the last query's keyframe
+        (what verification is frozen with; the candidates' come from the map's cache).
     """
 
     def __init__(self, config: LoopClosingConfig, database: KeyframeDatabase) -> None:
@@ -97,27 +97,21 @@ class LoopDetector:
         cfg = self.config
         self.last_candidates = []
         cov = mp.covisibility(kf.id)
-        memo: dict[int, dict[int, int]] = {kf.id: cov}
-        self.last_covisibility = memo
+        self.last_covisibility = {kf.id: cov}
         strong = [k for k, w in cov.items() if w >= cfg.min_neighbour_weight and k in self.database]
         if not strong:
             self._groups = []
             return []
         min_score = min(bow_score(bow, self.database.bow(k)) for k in strong)  # a few neighbours
-
-        def covis(i: int) -> dict[int, int]:  # each keyframe's covisibility once per query
-            if i not in memo:
-                memo[i] = mp.covisibility(i) if i in mp.keyframes else {}
-            return memo[i]
+        # the map caches each keyframe's covisible keyframes in weight order: no dictionary or sort here
 
         def connected(i: int) -> list[int]:  # ORB-SLAM2 GetConnectedKeyFrames: weight >= 15 (else the best one)
-            c = covis(i)
-            strong_i = [k for k, w in c.items() if w >= cfg.min_neighbour_weight]
-            return strong_i if strong_i or not c else [max(c, key=lambda k: (c[k], -k))]
+            if i not in mp.keyframes:
+                return []
+            return mp.best_covisibles(i, None, cfg.min_neighbour_weight) or mp.best_covisibles(i, 1)
 
         def best(i: int) -> list[int]:
-            c = covis(i)
-            return sorted(c, key=lambda k: (-c[k], k))[: cfg.query.group_size]
+            return mp.best_covisibles(i, cfg.query.group_size) if i in mp.keyframes else []
 
         # ORB-SLAM2 excludes the connected keyframes (weight >= 15); "covisible" excludes any that
         # shares a point (stricter: fewer candidates near the query, but a few old points matched

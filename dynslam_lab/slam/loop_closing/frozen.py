@@ -78,6 +78,11 @@ class _FrozenKeyframes(Mapping):
             view = self._views[kf_id] = KeyframeView(self._kf[kf_id], None, self._pose[kf_id])
         return view
 
+    def centres(self, ids) -> np.ndarray:
+        """``(K, 3)`` frozen camera centres of keyframes ``ids`` (no view made: path lengths read
+        every keyframe between the candidate and the query)."""
+        return np.array([self._pose[k][:3, 3] for k in ids]).reshape(-1, 3)
+
     def __iter__(self) -> Iterator[int]:
         return iter(self._kf)
 
@@ -131,9 +136,10 @@ class MapView:
 def freeze_for_verification(mp, query_id: int, candidate_ids: list[int], covisibility: dict[int, dict[int, int]],
                             group_size: int) -> MapView:
     """A :class:`MapView` of live map ``mp`` holding what verifying ``candidate_ids`` for keyframe
-    ``query_id`` reads (frame loop). ``covisibility`` must hold the query's and each candidate's
-    covisibility (the detector's, :attr:`.detection.LoopDetector.last_covisibility`); ``group_size``
-    neighbours of each candidate form its loop group."""
+    ``query_id`` reads (frame loop). ``covisibility``: covisibility dictionaries already at hand (the
+    detector's, :attr:`.detection.LoopDetector.last_covisibility`); those of the query and the
+    candidates missing from it are taken from the map. ``group_size`` neighbours of each candidate form
+    its loop group."""
     cov = {k: covisibility[k] if k in covisibility else mp.covisibility(k) for k in [query_id, *candidate_ids]}
     view = MapView({}, cov, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),
                    np.zeros(0, bool), float(mp.scale_factor))

@@ -278,7 +278,8 @@ def path_length(mp, a: int, b: int) -> float:
     ids = [k for k in sorted(mp.keyframes) if lo <= k <= hi]
     if len(ids) < 2:
         return 0.0
-    centres = np.array([mp.keyframes[k].center for k in ids])
+    kfs = mp.keyframes
+    centres = kfs.centres(ids) if hasattr(kfs, "centres") else np.array([kfs[k].center for k in ids])
     return float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
 
 
