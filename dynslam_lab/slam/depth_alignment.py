@@ -21,7 +21,9 @@ point in the world is ``X_w = R^T (X - t)``; a step gives ``dX_w / d omega = R^T
     d e / d omega = (m x p) / sigma,     d e / d tau = -m / sigma
 
 Our reading (ours, not ORB-SLAM2, which has no dense term): the reference is the last tracked
-frame (the most overlap); the term joins the feature residuals of motion-only BA only when the
+frame (the most overlap), or, as an option, a model fused from recent keyframes' depth
+(:func:`fuse_depth_model`); the depth images may be averaged first (:func:`smooth_depth`: the Kinect's
+quantised depth biases the alignment); the term joins the feature residuals of motion-only BA only when the
 features fail, or keep few inliers (``TrackingConfig.dense_below_inliers``) with a pose far from the
 motion prediction (``dense = "auto"``, the default, and only on frames with few keypoints while the
 screening judges the scene static: ``TrackingConfig.static_scene_frames``, ``dense_max_keypoints``), so

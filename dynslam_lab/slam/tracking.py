@@ -51,7 +51,10 @@ ORB-SLAM2.
 **Joint refinement** (ours, ``joint_position_sigma`` / ``joint_rotation_deg``, off by default): a frame
 the features tracked whose pose they fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on
 a few objects of a plain room) is refined by motion-only BA over its features and the dense term together
-(method ``"joint"``; docs/tracking.md "Weak feature poses").
+(method ``"joint"``; docs/tracking.md "Weak feature poses"). Options of the dense term, off by default
+(docs/tracking.md "A depth model of recent keyframes"): the reference a model fused from the last keyframes'
+depth instead of the last frame's (``dense_reference``), depth averaged before alignment
+(``dense_smooth_px``), its weight (``dense_sigma_scale``).
 
 **Far points** (ours, ``new_point_depth``, 8 m by default): a keyframe makes a map point of every
 static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
@@ -161,6 +164,7 @@ class TrackingConfig:
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
     dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
+    dense_sigma_scale: float = 1.5  # the dense term's samples are weighted with sigma = this x the sensor's axial noise (Nguyen et al. 2012, as depth_sigma); 1.5 as depth_sigma_scale before; ours, docs/tracking.md "A depth model of recent keyframes"
     dense_smooth_px: int = 1  # the depth images of the dense term (the frame's samples and the reference) are averaged over this many px square first (depth_alignment.smooth_depth: the Kinect's quantised depth biases point-to-plane alignment); 1 = raw depth; ours, docs/tracking.md "A depth model of recent keyframes"
     dense_reference: str = "frame"  # what the dense term aligns a frame's depth to: "frame" (the last frame's depth image: frame to frame, drifts), "keyframes" (a model fused from the depth of the last dense_model_keyframes keyframes at their current, optimised poses, the last frame filling only the cells they leave empty: depth_alignment.fuse_depth_model); ours, docs/tracking.md "A depth model of recent keyframes"
     dense_model_keyframes: int = 4  # "keyframes": the most recent keyframes whose depth makes the model; ours
@@ -174,7 +178,7 @@ class TrackingConfig:
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
-                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
+                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg", "dense_sigma_scale")
         if self.dense_reference not in ("frame", "keyframes"):
             raise ValueError(f"TrackingConfig.dense_reference must be 'frame' or 'keyframes', got {self.dense_reference!r}")
         if self.dense_model_pose not in ("map", "tracked"):
@@ -514,7 +518,8 @@ class Tracker:
                 self._dense_grid = (last.index, grid)
             ref, T_r_w = self._dense_grid[1], se3_inv(last.T_w_c)
             self.dense_model_sources = 0
-        return DenseTerm(X, self.depth_sigma(X[:, 2]), ref, T_r_w, self.camera,
+        sigma = cfg.dense_sigma_scale * nguyen_sigma(X[:, 2], 0.0, self._depth_noise)
+        return DenseTerm(X, sigma, ref, T_r_w, self.camera,
                          cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
 
     def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int], stride: int | None = None) -> np.ndarray:
