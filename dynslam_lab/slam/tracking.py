@@ -55,7 +55,10 @@ ORB-SLAM2.
 **Joint refinement** (ours, ``joint_position_sigma`` / ``joint_rotation_deg``, off by default): a frame
 the features tracked whose pose they fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on
 a few objects of a plain room) is refined by motion-only BA over its features and the dense term together
-(method ``"joint"``; docs/tracking.md "Weak feature poses").
+(method ``"joint"``; docs/tracking.md "Weak feature poses"). Options of the dense term, off by default
+(docs/tracking.md "A depth model of recent keyframes"): the reference a model fused from the last keyframes'
+depth instead of the last frame's (``dense_reference``), depth averaged before alignment
+(``dense_smooth_px``), its weight (``dense_sigma_scale``).
 
 **Far points** (ours, ``new_point_depth``, 8 m by default): a keyframe makes a map point of every
 static keypoint with depth up to that, not only the close ones: ORB-SLAM2 triangulates far points between
@@ -84,7 +87,7 @@ from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
-from .depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
+from .depth_alignment import DenseTerm, DepthGrid, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
@@ -165,6 +168,13 @@ class TrackingConfig:
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
     dense_prior_rotation_deg: float = 1.0  # deg, same for the rotation; ours
+    dense_sigma_scale: float = 1.5  # the dense term's samples are weighted with sigma = this x the sensor's axial noise (Nguyen et al. 2012, as depth_sigma); 1.5 as depth_sigma_scale before; ours, docs/tracking.md "A depth model of recent keyframes"
+    dense_smooth_px: int = 1  # the depth images of the dense term (the frame's samples and the reference) are averaged over this many px square first (depth_alignment.smooth_depth: the Kinect's quantised depth biases point-to-plane alignment); 1 = raw depth; ours, docs/tracking.md "A depth model of recent keyframes"
+    dense_reference: str = "frame"  # what the dense term aligns a frame's depth to: "frame" (the last frame's depth image: frame to frame, drifts), "keyframes" (a model fused from the depth of the last dense_model_keyframes keyframes at their current, optimised poses, the last frame filling only the cells they leave empty: depth_alignment.fuse_depth_model); ours, docs/tracking.md "A depth model of recent keyframes"
+    dense_model_keyframes: int = 4  # "keyframes": the most recent keyframes whose depth makes the model; ours
+    dense_model_stride: int = 4  # "keyframes": px between the model's samples of a keyframe's depth image (finer than dense_stride so that the samples of a few views fill the model's cells); ours
+    dense_model_pose: str = "map"  # "keyframes": the pose of a keyframe's depth in the model: "map" (the keyframe's current pose), "tracked" (the pose tracking gave the frame, moved as the keyframe moved since its first local BA: loop corrections); ours
+    dense_model_last_frame: bool = True  # "keyframes": the last frame's depth fills the model's cells no keyframe sample reaches (a plain wall makes few keyframes); ours
     joint_position_sigma: float = 0.0  # m; a frame the features tracked is refined with the dense term too ("joint") when its feature pose leaves the camera centre this uncertain (optimize.pose_uncertainty, 1 px noise) or more, while "weak"/"auto" engage (static scene); 0 = off (the default: it trades loop_pattern's ATE for loop_flat's); tried 0.0025; ours, docs/tracking.md "Weak feature poses: features and depth together"
     joint_rotation_deg: float = 0.0  # deg; same for the orientation; 0 = off; tried 0.05; ours
     start_from_reference: bool = True  # with a screener that refined the frame's pose on the local map (the reference pose, dynamic.reference_pose), track the local map from that pose and its inlier matches instead of the motion-model search and refinement (the same matching and refinement done once; DynaSLAM's "low-cost tracking" feeds its tracking the same way); ours, docs/speed.md "Tracking from the reference pose"
@@ -173,7 +183,13 @@ class TrackingConfig:
     def __post_init__(self) -> None:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
-                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg")
+                    "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg", "dense_sigma_scale")
+        if self.dense_reference not in ("frame", "keyframes"):
+            raise ValueError(f"TrackingConfig.dense_reference must be 'frame' or 'keyframes', got {self.dense_reference!r}")
+        if self.dense_model_pose not in ("map", "tracked"):
+            raise ValueError(f"TrackingConfig.dense_model_pose must be 'map' or 'tracked', got {self.dense_model_pose!r}")
+        if not isinstance(self.dense_model_last_frame, bool):
+            raise ValueError(f"TrackingConfig.dense_model_last_frame must be a bool, got {self.dense_model_last_frame!r}")
         if self.dense not in ("off", "weak", "auto", "always"):
             raise ValueError(f"TrackingConfig.dense must be 'off', 'weak', 'auto' or 'always', got {self.dense!r}")
         if not self.dense_mask_radius >= 0:
@@ -186,7 +202,8 @@ class TrackingConfig:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, got {getattr(self, name)}")
         at_least_one = ("pnp_iterations", "local_max_keyframes", "reloc_candidates", "kf_max_frames", "kf_ref_min_obs",
-                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride")
+                        "min_track_inliers", "flood_keyframes", "flood_window", "flood_min_gap", "dense_stride",
+                        "dense_model_keyframes", "dense_model_stride", "dense_smooth_px")
         if not 0 <= self.static_scene_max_dynamic <= 1:
             raise ValueError(f"TrackingConfig.static_scene_max_dynamic must be in [0, 1], got {self.static_scene_max_dynamic}")
         non_negative = ("min_depth", "static_scene_frames", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
@@ -288,6 +305,12 @@ class Tracker:
         # frame's vertex/normal grid (frame index, grid), the fraction of depth samples associated.
         self._dense: DenseTerm | None = None
         self._dense_grid: tuple[int, DepthGrid] | None = None
+        # dense_reference "keyframes": the depth samples of recent keyframes (id -> DepthSource in the keyframe's
+        # camera; the pose is read from the map at use), and the last frame's (frame index, DepthSource)
+        self._kf_depth: dict[int, DepthSource] = {}
+        self._last_depth: tuple[int, DepthSource] | None = None
+        self._smoothed: dict[int, np.ndarray] = {}  # frame index -> depth image smoothed for the dense term (two kept)
+        self.dense_model_sources = 0  # views fused into the last model (0: the last frame's grid, "frame")
         self.dense_fraction = 0.0
         # The low-texture options (far points, dense term) engage only while the screening judges the
         # scene static (ours): the index of the last frame with more than static_scene_max_dynamic of
@@ -438,17 +461,75 @@ class Tracker:
         frame.map_point_ids[m.idx_b] = pids[m.idx_a]
         return lidx, pids
 
-    def _dense_term(self, frame: SlamFrame) -> DenseTerm | None:
-        """The point-to-plane term of ``frame``'s depth against the last frame's (module
-        :mod:`.depth_alignment`), or None without both depth images."""
+    def _dense_depth(self, frame: SlamFrame) -> np.ndarray:
+        """``frame``'s depth image as the dense term reads it: averaged over ``dense_smooth_px`` px
+        (:func:`~.depth_alignment.smooth_depth`; cached for the frame being tracked, which is the next one's
+        last frame)."""
+        if frame.index not in self._smoothed:
+            self._smoothed = {k: v for k, v in self._smoothed.items() if k > frame.index - 2}
+            self._smoothed[frame.index] = smooth_depth(frame.depth_image, self.cfg.dense_smooth_px)
+        return self._smoothed[frame.index]
+
+    def _depth_source(self, frame: SlamFrame) -> DepthSource:
+        """``frame``'s depth samples every ``dense_model_stride`` px with normals (two cells apart, so over
+        the same ~``2 dense_stride`` px as the frame-to-frame grid), cells near dynamic keypoints left out."""
+        s = self.cfg.dense_model_stride
+        grid = vertex_normal_grid(self._dense_depth(frame), self.camera, s, step=max(1, round(self.cfg.dense_stride / s)))
+        grid.N[self._dynamic_cells(frame, grid.N.shape[:2], s)] = np.nan
+        z = grid.V[..., 2]
+        grid.N[~((z >= self.cfg.min_depth) & (z <= self.cfg.max_depth))] = np.nan
+        return DepthSource.from_grid(grid, np.eye(4))
+
+    def _note_keyframe_depth(self) -> None:
+        """Keep the depth samples of the last frame when it became a keyframe (``dense_reference =
+        "keyframes"``), and forget those of keyframes no longer in the map or beyond the most recent
+        ``2 dense_model_keyframes``."""
+        last, kf = self.last, self.ref_kf
+        if (self.cfg.dense_reference != "keyframes" or self.cfg.dense == "off" or last is None or kf is None
+                or last.depth_image is None or kf.frame_index != last.index or self.last_kf_frame != last.index
+                or kf.id in self._kf_depth):
+            return
+        src = self._last_depth[1] if self._last_depth is not None and self._last_depth[0] == last.index else self._depth_source(last)
+        # T_w_c: the tracked pose relative to the keyframe's pose now (after its first local BA), so that the
+        # keyframe's later moves (loop corrections) carry it along (dense_model_pose = "tracked")
+        self._kf_depth[kf.id] = DepthSource(src.V, src.N, se3_inv(kf.T_w_c) @ last.T_w_c)
+        keep = sorted(k for k in self._kf_depth if k in self.map.keyframes)[-2 * self.cfg.dense_model_keyframes :]
+        self._kf_depth = {k: self._kf_depth[k] for k in keep}
+
+    def dense_reference_model(self, T_r_w: np.ndarray) -> DepthGrid | None:
+        """The reference of the dense term for ``dense_reference = "keyframes"``: the depth samples of the most
+        recent ``dense_model_keyframes`` keyframes (at their current poses; the keyframes local BA and loop
+        closing optimise against the map, so the model does not follow the last frame's error) fused into a
+        grid seen from ``T_r_w`` (:func:`~.depth_alignment.fuse_depth_model`), the last frame's samples filling
+        the cells none of them reaches (``dense_model_last_frame``). None without any depth."""
+        cfg, last = self.cfg, self.last
+        kids = [k for k in sorted(self._kf_depth, reverse=True)
+                if k in self.map.keyframes and not self.map.keyframes[k].bad][: cfg.dense_model_keyframes]
+        sources = []
+        for k in kids:
+            src = self._kf_depth[k]
+            T = self.map.keyframes[k].T_w_c
+            sources.append(DepthSource(src.V, src.N, T @ src.T_w_c if cfg.dense_model_pose == "tracked" else T, 0))
+        if cfg.dense_model_last_frame and last is not None and last.T_w_c is not None and last.depth_image is not None \
+                and not any(self.map.keyframes[k].frame_index == last.index for k in kids):
+            if self._last_depth is None or self._last_depth[0] != last.index:
+                self._last_depth = (last.index, self._depth_source(last))
+            src = self._last_depth[1]
+            sources.append(DepthSource(src.V, src.N, last.T_w_c, 1))
+        self.dense_model_sources = len(sources)
+        if not sources:
+            return None
+        return fuse_depth_model(sources, T_r_w, self.camera, cfg.dense_stride)[0]
+
+    def _dense_term(self, frame: SlamFrame, T_ref: np.ndarray | None = None) -> DenseTerm | None:
+        """The point-to-plane term of ``frame``'s depth (module :mod:`.depth_alignment`) against the last
+        frame's depth image (``dense_reference = "frame"``) or the model of recent keyframes' depth
+        (``"keyframes"``, :meth:`dense_reference_model`, seen from ``T_ref``, a ``T_c_w`` near the frame's pose;
+        the motion prediction when None); None without depth on both sides."""
         last, cfg = self.last, self.cfg
         if frame.depth_image is None or last is None or last.depth_image is None or last.T_w_c is None:
             return None
-        if self._dense_grid is None or self._dense_grid[0] != last.index:
-            grid = vertex_normal_grid(last.depth_image, self.camera, cfg.dense_stride)
-            grid.N[self._dynamic_cells(last, grid.N.shape[:2])] = np.nan
-            self._dense_grid = (last.index, grid)
-        X = self.camera.backproject_depth(frame.depth_image, cfg.dense_stride)
+        X = self.camera.backproject_depth(self._dense_depth(frame), cfg.dense_stride)
         X = X[~self._dynamic_cells(frame, X.shape[:2])]
         X = X[(X[:, 2] >= cfg.min_depth) & (X[:, 2] <= cfg.max_depth)]
         if len(X) < 100:
@@ -456,17 +537,31 @@ class Tracker:
         T_pred = self.predict_pose(frame.timestamp)
         if T_pred is None:
             T_pred = se3_inv(last.T_w_c)
-        return DenseTerm(X, self.depth_sigma(X[:, 2]), self._dense_grid[1], se3_inv(last.T_w_c), self.camera,
+        if cfg.dense_reference == "keyframes":
+            T_r_w = T_pred if T_ref is None else T_ref
+            ref = self.dense_reference_model(T_r_w)
+            if ref is None:
+                return None
+        else:
+            if self._dense_grid is None or self._dense_grid[0] != last.index:
+                grid = vertex_normal_grid(smooth_depth(last.depth_image, cfg.dense_smooth_px), self.camera, cfg.dense_stride)
+                grid.N[self._dynamic_cells(last, grid.N.shape[:2])] = np.nan
+                self._dense_grid = (last.index, grid)
+            ref, T_r_w = self._dense_grid[1], se3_inv(last.T_w_c)
+            self.dense_model_sources = 0
+        sigma = cfg.dense_sigma_scale * nguyen_sigma(X[:, 2], 0.0, self._depth_noise)
+        return DenseTerm(X, sigma, ref, T_r_w, self.camera,
                          cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
 
-    def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int]) -> np.ndarray:
-        """``(h, w)`` bool over the dense grid: cells within ``dense_mask_radius`` px of a keypoint the
-        screening judged dynamic (vectorised: the keypoints' cells, dilated by a disc)."""
+    def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int], stride: int | None = None) -> np.ndarray:
+        """``(h, w)`` bool over the dense grid (``stride`` px, ``dense_stride`` when None): cells within
+        ``dense_mask_radius`` px of a keypoint the screening judged dynamic (vectorised: the keypoints' cells,
+        dilated by a disc)."""
         out = np.zeros(shape, bool)
         dyn = frame.uv[~frame.static]
         if not len(dyn) or self.cfg.dense_mask_radius <= 0:
             return out
-        s = self.cfg.dense_stride
+        s = self.cfg.dense_stride if stride is None else stride
         i = np.clip(np.round(dyn[:, 1] / s).astype(np.int64), 0, shape[0] - 1)
         j = np.clip(np.round(dyn[:, 0] / s).astype(np.int64), 0, shape[1] - 1)
         out[i, j] = True
@@ -659,6 +754,7 @@ class Tracker:
         ok = False
         self.method = ""
         self.note_screening(frame)
+        self._note_keyframe_depth()
         self.predicted_T_c_w = None
         self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
@@ -755,10 +851,10 @@ class Tracker:
         ``"joint"``) when ``dense_min_fraction`` of the depth samples are associated and
         ``min_track_inliers`` matches stay inliers; otherwise the feature pose stands."""
         cfg = self.cfg
-        term = self._dense_term(frame)
+        term = self._dense_term(frame, se3_inv(frame.T_w_c))
         if term is None:
             return False
-        kept = (frame.T_w_c, frame.map_point_ids.copy(), self.n_inliers)
+        kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers)
         self._dense = term
         try:
             n = self._optimize(frame, se3_inv(frame.T_w_c))
@@ -767,8 +863,9 @@ class Tracker:
         T = se3_inv(frame.T_w_c)
         fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
         if n < cfg.min_track_inliers or fraction < cfg.dense_min_fraction:
-            frame.T_w_c, frame.map_point_ids, self.n_inliers = kept
-            frame.outlier[:] = False
+            # rolled back: the feature pose, its matches and their outlier flags as they were (the joint BA's
+            # outlier marks must not survive to drop matches of the feature pose)
+            frame.T_w_c, frame.map_point_ids, frame.outlier, self.n_inliers = kept
             return False
         self._discard_outliers(frame)
         self.dense_fraction, self.n_inliers, self.method = fraction, n, "joint"

@@ -362,3 +362,59 @@ def test_joint_refinement_fixes_the_pose_of_clustered_features(joint):
     else:
         assert "joint" not in [r.method for r in results]
         assert np.median(err[2:]) > 0.05, np.round(err, 3)
+
+
+def test_refine_joint_restores_the_feature_pose_and_outlier_flags_when_it_rejects():
+    """``refine_joint`` on a tracked frame with 12 matches made wrong on purpose (each keypoint given another
+    keypoint's map point): the joint BA marks them outliers. Rejected (``dense_min_fraction = 1``: never
+    reached), the frame is as the features left it: pose, matches (the wrong ones too) and outlier flags (none
+    set: the joint BA's marks must not survive). Accepted, the wrong matches are dropped (-1), no flag is left
+    set, and the method is ``joint``."""
+    frames = scene.frames(8, "xyz")
+    cfg = TrackingConfig(joint_position_sigma=0.0025, joint_rotation_deg=0.05)
+    sys_ = System(CAM, Config(tracking=cfg))
+    for f in frames[:6]:
+        assert sys_.process(f).tracked
+    tr = sys_.tracker
+    fr = frames[6]
+    sf = make_slam_frame(fr, extract_features(fr.rgb[:, :, 0]))
+    assert tr._track_features(sf) and tr.n_inliers > 100
+    idx = np.flatnonzero(sf.map_point_ids >= 0)
+    wrong = idx[:12]
+    sf.map_point_ids[wrong] = sf.map_point_ids[idx[-12:]][::-1]  # far keypoints' points
+    sf.outlier[:] = False
+    before = (sf.T_w_c.copy(), sf.map_point_ids.copy(), sf.outlier.copy(), tr.n_inliers, tr.method)
+
+    tr.cfg = dataclasses.replace(cfg, dense_min_fraction=1.0)
+    assert not tr.refine_joint(sf)
+    assert np.array_equal(sf.T_w_c, before[0]) and np.array_equal(sf.map_point_ids, before[1])
+    assert not sf.outlier.any() and (tr.n_inliers, tr.method) == before[3:]
+
+    tr.cfg = cfg
+    assert tr.refine_joint(sf) and tr.method == "joint"
+    assert not sf.outlier.any()
+    assert (sf.map_point_ids[wrong] == -1).sum() >= 10
+    assert tr.n_inliers == int((sf.map_point_ids >= 0).sum())
+
+
+@pytest.mark.parametrize("reference", ["frame", "keyframes"])
+def test_dense_keyframe_reference_does_not_inherit_the_last_frames_error(reference):
+    """Hand-made drift: the last frame before four frames without texture (tracked by depth alone) is moved
+    2 cm along the view, as a drifted pose would be. Aligned to the last frame's depth (``dense_reference =
+    "frame"``), the next frame inherits the error (> 1.5 cm); aligned to the model of the keyframes' depth
+    (``"keyframes"``, the last frame filling only the cells they leave empty) it stays within 5 mm of the
+    renderer's pose."""
+    frames = _blanked(scene.frames(24, "xyz"), 12, 16)
+    sys_ = System(CAM, Config(tracking=TrackingConfig(dense_reference=reference)))
+    results = [sys_.process(f) for f in frames[:12]]
+    assert all(r.tracked for r in results)
+    last = sys_.tracker.last
+    last.T_w_c = make_pose(np.eye(3), [0.0, 0.0, 0.02]) @ last.T_w_c  # along the view, towards the wall
+    r = sys_.process(frames[12])
+    assert r.method == "dense"
+    err = np.linalg.norm(r.T_w_c[:3, 3] - frames[12].T_w_c_gt[:3, 3])
+    if reference == "frame":
+        assert err > 0.015, err
+    else:
+        assert sys_.tracker.dense_model_sources >= 2
+        assert err < 0.005, err
