@@ -59,7 +59,7 @@ def check_descriptors(d: np.ndarray, name: str) -> np.ndarray:
 def hamming_words(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamming distances of descriptors viewed as 64-bit words (``(..., 4)`` uint64, broadcast):
     the popcount of ``a ^ b`` summed over the last axis, int32. The one kernel behind
-    :func:`hamming_distance`, :func:`hamming_pairs` and the vocabulary's tree descent."""
+    :func:`hamming_distance` and :func:`hamming_pairs`."""
     return np.bitwise_count(a ^ b).sum(axis=-1, dtype=np.int32)
 
 

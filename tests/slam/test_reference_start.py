@@ -32,10 +32,13 @@ def _run(seq, start: bool):
     cfg = Config()
     cfg = replace(cfg, tracking=replace(cfg.tracking, start_from_reference=start))
     system = build_pipeline(cfg, seq.camera, detector="none", filters="geometry", loop_closing=False)
-    methods = []
+    methods, moved = [], []
     with blas_single_thread():
         for i in range(len(seq)):
             methods.append(system.process(seq[i]).method)
+            ref = system.screener.last_reference
+            moved.append(ref is not None and (ref.room or bool(ref.surface_moved.any())))
+    system.moved_surface_frames = moved
     return methods, compute_ate(seq.groundtruth, system.trajectory(), align="se3").stats.rmse, system
 
 
@@ -43,8 +46,12 @@ def test_tracking_starts_from_the_reference_pose_and_stays_on_the_static_world(s
     methods, ate, system = _run(sequence, True)
     methods_mm, ate_mm, _ = _run(sequence, False)
     assert not system.lost_frames
-    # the reference pose is on the map from the second frame: every later frame starts from it
-    assert methods.count("reference_pose") >= N_FRAMES - 5, methods
+    # the reference pose is on the map from the second frame: later frames start from it, except where the
+    # reference pose found a surface moving against the rest (then the motion model decides: measured 84 of 90)
+    moved = system.moved_surface_frames
+    assert methods.count("reference_pose") >= 0.8 * N_FRAMES, methods
+    assert all(m != "reference_pose" for m, mv in zip(methods, moved) if mv)
+    assert all(m == "reference_pose" for m, mv in zip(methods[2:], moved[2:]) if not mv), methods
     assert "reference_pose" not in methods_mm and methods_mm.count("motion_model") >= N_FRAMES - 5
     # the same static world as the motion model finds (measured 1.9 mm both ways): the boxes, close and
     # moving from frame 3 on, pull neither
