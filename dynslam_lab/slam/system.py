@@ -412,7 +412,10 @@ class System:
         if n < self.config.tracking.init_min_points:
             return False
         sf.T_w_c = np.eye(4)
-        self._new_keyframe(sf, frame, all_points=True)
+        kf, _ = self._new_keyframe(sf, frame, all_points=True)
+        # the first keyframe is the local map of the next frame: the screener's reference pose of frame 1
+        # needs it (tracking sets the local keyframes only when it tracks the local map)
+        self.tracker.local_kf_ids = [kf.id]
         self.tracker.last = sf
         self.tracker.state = TrackState.OK
         self.tracker.velocity = None
