@@ -20,7 +20,10 @@ corners than needed and then do the ORB-SLAM part ourselves, vectorised: per lev
 quota by the series above, per cell of a ``grid_cols x grid_rows`` grid an equal share of
 that quota, the strongest corners first, and the quota a cell cannot fill is handed to the
 remaining corners of the level by response. The same ORB object then computes the
-descriptors of the kept keypoints.
+descriptors of the kept keypoints. Unlike ORB-SLAM2, the retry at ``min_fast_threshold`` is
+for the whole image (when it has fewer corners than ``n_features``), not per cell: weakly
+textured cells may get no keypoint (docs/robustness.md, "ORB corners at minThFAST", measures
+one detection at 7 instead).
 
 With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
 ``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
