@@ -20,10 +20,13 @@ corners than needed and then do the ORB-SLAM part ourselves, vectorised: per lev
 quota by the series above, per cell of a ``grid_cols x grid_rows`` grid an equal share of
 that quota, the strongest corners first, and the quota a cell cannot fill is handed to the
 remaining corners of the level by response. The same ORB object then computes the
-descriptors of the kept keypoints. Unlike ORB-SLAM2, the retry at ``min_fast_threshold`` is
-for the whole image (when it has fewer corners than ``n_features``), not per cell: weakly
-textured cells may get no keypoint (docs/robustness.md, "ORB corners at minThFAST", measures
-one detection at 7 instead).
+descriptors of the kept keypoints. OpenCV keeps, per level, a fixed number of corners by
+response, so a textured object can take the whole list and leave weakly textured cells (a wall
+of fine noise under dim light) without a candidate. Those cells (fewer than ``cell_retry``
+candidates, over all levels) are searched again at ``min_fast_threshold`` by one detection
+masked to them (:func:`retry_cells`): ORB-SLAM2's per-cell retry. An image with fewer corners
+than ``n_features`` in all is detected again at ``min_fast_threshold`` as a whole.
+docs/robustness.md, "ORB corners at minThFAST", measures what this changes for dynamic scenes.
 
 With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
 ``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
@@ -47,7 +50,7 @@ import numpy as np
 
 __all__ = [
     "OrbConfig", "Features", "Candidates", "extract_features", "refine_subpixel", "level_quotas", "region_quotas",
-    "budget_candidates", "scale_factors",
+    "budget_candidates", "retry_cells", "scale_factors",
 ]
 
 
@@ -65,6 +68,7 @@ class OrbConfig:
     edge_threshold: int = 19  # border without features (px); ORB-SLAM2 EDGE_THRESHOLD: 19
     patch_size: int = 31  # BRIEF / orientation patch (px); ORB-SLAM2 PATCH_SIZE: 31
     oversample: float = 2.5  # corners asked from OpenCV per kept keypoint (ours; bucketing needs spare)
+    cell_retry: int = 1  # grid cells with fewer corners than this at fast_threshold are searched again at min_fast_threshold (ORB-SLAM2 retries a cell with no corner at minThFAST: 1); 0 = off (the whole-image retry only)
     subpixel_levels: int = 0  # refine keypoints of levels < this with cv2.cornerSubPix on their level image (0 = off); ours (ORB-SLAM2 keeps integer level pixels)
     subpixel_max_shift: float = 0.75  # a refinement moving a keypoint more than this (level px) is dropped (keeps the integer position); ours
     # The keypoint budget and the dynamic region (extract_features(region=...), docs/robustness.md "ORB budget"):
@@ -105,6 +109,8 @@ class OrbConfig:
             raise ValueError(f"OrbConfig.prior_lag must be >= 1 frame, got {self.prior_lag}")
         if self.prior_dilate_px < 0:
             raise ValueError(f"OrbConfig.prior_dilate_px must be >= 0 pixels, got {self.prior_dilate_px}")
+        if self.cell_retry < 0:
+            raise ValueError(f"OrbConfig.cell_retry must be >= 0 corners (0 = off), got {self.cell_retry}")
         if not self.region_candidates >= 1.0:
             raise ValueError(f"OrbConfig.region_candidates must be >= 1 (multiple of n_features x oversample), got {self.region_candidates}")
 
@@ -317,6 +323,9 @@ def budget_candidates(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, quot
     * it is **short**: fewer corners than its quota at the FAST threshold (low texture; ORB-SLAM2
       retries at minThFAST there, as the plain extraction does).
 
+    Otherwise the outside side takes its share of the list, and its cells left with fewer than
+    ``cfg.cell_retry`` corners are searched again (:func:`retry_cells`, one more detection).
+
     The region's quotas are ``quotas_in`` (``(n_levels,)``, :func:`region_quotas`), the outside's
     the rest of :func:`level_quotas`. Returns ``(orb, inside, outside, detections)``: the ORB object
     of the shared detection, each side's :class:`Candidates` (``inside`` empty when the region's
@@ -343,8 +352,51 @@ def budget_candidates(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, quot
             sides.append(_candidates(_detect(gray, cfg, cfg.min_fast_threshold, own.astype(np.uint8) * 255)[1]))
             detections += 1
         else:
-            sides.append(_candidates(kps, np.flatnonzero(sel), arrays))
+            extra = []
+            if cfg.cell_retry > 0 and pixels is not region:  # the static side: its weakly textured cells again
+                extra = retry_cells(gray, cfg, arrays[0][sel], pixels if allowed is None else pixels & allowed)
+                detections += bool(extra)
+            if extra:
+                sides.append(_candidates([kps[i] for i in np.flatnonzero(sel)] + extra))
+            else:
+                sides.append(_candidates(kps, np.flatnonzero(sel), arrays))
     return orb, sides[0], sides[1], detections
+
+
+def retry_cells(gray: np.ndarray, cfg: OrbConfig, uv: np.ndarray, allowed: np.ndarray | None = None) -> list:
+    """ORB-SLAM2's per-cell retry: corners at ``cfg.min_fast_threshold`` in the grid cells where the
+    detection at ``cfg.fast_threshold`` left fewer than ``cfg.cell_retry`` candidates.
+
+    ``uv`` ``(N, 2)`` are the candidates' level-0 pixels (every level counts for the cell they fall in);
+    ``allowed`` ``(H, W)`` bool limits the search (the pixels outside a dynamic region, a mask); a cell
+    is searched only when at least half of it is searchable (allowed, and inside OpenCV's border of
+    ``edge_threshold`` pixels). One OpenCV detection, masked to those cells, asked for their share of ``n_features x oversample``
+    corners (at least 64). Returns the new ``cv2.KeyPoint`` objects (empty when no cell is short).
+    """
+    n_cells = cfg.grid_cols * cfg.grid_rows
+    h, w = gray.shape
+    counts = np.bincount(_cells(uv, gray.shape, cfg), minlength=n_cells) if len(uv) else np.zeros(n_cells, np.int64)
+    short = (counts < cfg.cell_retry).reshape(cfg.grid_rows, cfg.grid_cols)
+    if not short.any():
+        return []
+    # only cells mostly searchable: inside the border OpenCV leaves (edge_threshold) and the allowed pixels
+    # (a cell cut by a dynamic region has few corners outside it because it has few pixels there)
+    e = int(cfg.edge_threshold)
+    searchable = np.zeros((h, w), np.uint8)
+    searchable[e : h - e, e : w - e] = 1
+    if allowed is not None:
+        searchable &= np.asarray(allowed, bool).astype(np.uint8)
+    share = cv2.resize(searchable.astype(np.float32), (cfg.grid_cols, cfg.grid_rows), interpolation=cv2.INTER_AREA)
+    short &= share >= 0.5
+    if not short.any():
+        return []
+    m = cv2.resize(short.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) & searchable
+    n = max(int(np.ceil(_n_candidates(cfg) * float(short.mean()))), 64)
+    kps = _detect(gray, cfg, cfg.min_fast_threshold, m * 255, n)[1]
+    if not kps:
+        return []
+    inside = short.reshape(-1)[_cells(_keypoint_arrays(kps)[0], gray.shape, cfg)]  # the pyramid's corners near a cell edge
+    return [k for k, ok in zip(kps, inside) if ok]
 
 
 def _budgeted(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, share: float, mask: np.ndarray | None) -> tuple[cv2.ORB, list]:
@@ -423,6 +475,8 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
         if len(kps) < cfg.n_features:
             # Low texture: redo the detection with the lower FAST threshold (ORB-SLAM2 minThFAST).
             orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
+        elif cfg.cell_retry > 0:  # ORB-SLAM2's retry per cell, where the image as a whole had corners enough
+            kps = kps + retry_cells(gray, cfg, _keypoint_arrays(kps)[0], None if mask is None else mask > 0)
         if not kps:
             return Features.empty()
         uv, octave, response = _keypoint_arrays(kps)

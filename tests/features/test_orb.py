@@ -99,3 +99,61 @@ def test_reused_orb_object_gives_the_same_features_as_a_fresh_one(gray):
     t.start()
     t.join()
     assert theirs[0] is not mine and orb_module._orb_object(cfg, cfg.fast_threshold) is mine
+
+
+def _strong_and_faint(shape=(480, 640), seed=7) -> np.ndarray:
+    """High-contrast noise on the left half, faint noise on the right half: at FAST threshold 20 the
+    right half has next to no corners, at 7 it has many (a weakly textured wall beside a textured object)."""
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur((rng.random(shape) * 255).astype(np.uint8), (5, 5), 1.2).astype(np.float64)
+    half = shape[1] // 2
+    img[:, :half] = np.clip(128 + 2.5 * (img[:, :half] - 128), 0, 255)
+    img[:, half:] = 128 + 0.3 * (img[:, half:] - 128)
+    return img.astype(np.uint8)
+
+
+def _cells_with_keypoints(uv: np.ndarray, cfg: OrbConfig, shape) -> set:
+    h, w = shape
+    return set(zip((uv[:, 0] * cfg.grid_cols // w).astype(int).tolist(), (uv[:, 1] * cfg.grid_rows // h).astype(int).tolist()))
+
+
+def test_cells_without_corners_are_searched_again_at_min_fast_threshold():
+    """ORB-SLAM2's per-cell retry (cell_retry=1): the faint half gets keypoints where the detection at 20 left
+    its cells empty; the corners added are those of OpenCV's own detection at 7 masked to the empty cells."""
+    img = _strong_and_faint()
+    h, w = img.shape
+    off = extract_features(img, OrbConfig(cell_retry=0))
+    on = extract_features(img, OrbConfig(cell_retry=1))
+    right_off = int((off.uv[:, 0] >= w // 2).sum())
+    right_on = int((on.uv[:, 0] >= w // 2).sum())
+    # the independent count: FAST at 20 finds almost nothing on the faint half, FAST at 7 a lot
+    fast20 = cv2.FastFeatureDetector_create(20, True).detect(img[:, w // 2 + 20 :])
+    fast7 = cv2.FastFeatureDetector_create(7, True).detect(img[:, w // 2 + 20 :])
+    assert len(fast20) < 50 and len(fast7) > 2000
+    assert right_off < 60 and right_on > 100, (right_off, right_on)
+    cfg = OrbConfig()
+    cells_right = {c for c in _cells_with_keypoints(on.uv, cfg, img.shape) if c[0] >= cfg.grid_cols // 2}
+    assert len(cells_right) >= 50, len(cells_right)  # of the ~130 inner cells of the faint half (none without the retry)
+    # retry_cells against OpenCV: the detection at 7 masked to the cells the detection at 20 left empty
+    first = orb_module._detect(img, cfg, cfg.fast_threshold)[1]
+    uv0 = cv2.KeyPoint_convert(first).reshape(-1, 2)
+    extra = orb_module.retry_cells(img, cfg, uv0)
+    counts = np.bincount(orb_module._cells(uv0, img.shape, cfg), minlength=cfg.grid_cols * cfg.grid_rows)
+    empty = (counts == 0).reshape(cfg.grid_rows, cfg.grid_cols)
+    empty[[0, -1], :] = False  # the grid's outer cells: less than half of them inside OpenCV's 19-px border
+    empty[:, [0, -1]] = False
+    inner = np.zeros((h, w), np.uint8)
+    inner[19 : h - 19, 19 : w - 19] = 1
+    mask = np.kron(empty, np.ones((h // cfg.grid_rows, w // cfg.grid_cols), np.uint8)).astype(np.uint8) * inner * 255
+    n = max(int(np.ceil(1000 * cfg.oversample * empty.mean())), 64)
+    ref = cv2.ORB_create(nfeatures=n, scaleFactor=1.2, nlevels=8, edgeThreshold=19, patchSize=31, fastThreshold=7).detect(img, mask)
+    ref_uv = cv2.KeyPoint_convert(ref).reshape(-1, 2)
+    ref_uv = ref_uv[empty.reshape(-1)[orb_module._cells(ref_uv, img.shape, cfg)]]
+    got = sorted(map(tuple, cv2.KeyPoint_convert(extra).reshape(-1, 2).round(3).tolist()))
+    assert len(got) > 200 and got == sorted(map(tuple, ref_uv.round(3).tolist()))
+    assert empty.reshape(-1)[orb_module._cells(cv2.KeyPoint_convert(extra).reshape(-1, 2), img.shape, cfg)].all()
+
+
+def test_cell_retry_is_validated():
+    with pytest.raises(ValueError, match="cell_retry"):
+        OrbConfig(cell_retry=-1)
