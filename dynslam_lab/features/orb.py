@@ -22,9 +22,9 @@ that quota, the strongest corners first, and the quota a cell cannot fill is han
 remaining corners of the level by response. The same ORB object then computes the
 descriptors of the kept keypoints. OpenCV keeps, per level, a fixed number of corners by
 response, so a textured object can take the whole list and leave weakly textured cells (a wall
-of fine noise under dim light) without a candidate. Those cells (fewer than ``cell_retry``
-candidates, over all levels) are searched again at ``min_fast_threshold`` by one detection
-masked to them (:func:`retry_cells`): ORB-SLAM2's per-cell retry. An image with fewer corners
+of fine noise under dim light) without a candidate. With ``cell_retry`` > 0 (off by default) those cells (fewer than
+``cell_retry`` candidates, over all levels) are searched again at ``min_fast_threshold`` by one
+detection masked to them (:func:`retry_cells`): ORB-SLAM2's per-cell retry. An image with fewer corners
 than ``n_features`` in all is detected again at ``min_fast_threshold`` as a whole.
 docs/robustness.md, "ORB corners at minThFAST", measures what this changes for dynamic scenes.
 
@@ -68,7 +68,7 @@ class OrbConfig:
     edge_threshold: int = 19  # border without features (px); ORB-SLAM2 EDGE_THRESHOLD: 19
     patch_size: int = 31  # BRIEF / orientation patch (px); ORB-SLAM2 PATCH_SIZE: 31
     oversample: float = 2.5  # corners asked from OpenCV per kept keypoint (ours; bucketing needs spare)
-    cell_retry: int = 1  # grid cells with fewer corners than this at fast_threshold are searched again at min_fast_threshold (ORB-SLAM2 retries a cell with no corner at minThFAST: 1); 0 = off (the whole-image retry only)
+    cell_retry: int = 0  # grid cells with fewer corners than this at fast_threshold are searched again at min_fast_threshold (ORB-SLAM2 retries a cell with no corner at minThFAST: 1); 0 = off, the default (the whole-image retry only; docs/robustness.md "ORB corners at minThFAST": 1 fixes weak-texture rooms but lets a slowly starting cart pull tracking)
     subpixel_levels: int = 0  # refine keypoints of levels < this with cv2.cornerSubPix on their level image (0 = off); ours (ORB-SLAM2 keeps integer level pixels)
     subpixel_max_shift: float = 0.75  # a refinement moving a keypoint more than this (level px) is dropped (keeps the integer position); ours
     # The keypoint budget and the dynamic region (extract_features(region=...), docs/robustness.md "ORB budget"):
