@@ -22,11 +22,12 @@ that quota, the strongest corners first, and the quota a cell cannot fill is han
 remaining corners of the level by response. The same ORB object then computes the
 descriptors of the kept keypoints. OpenCV keeps, per level, a fixed number of corners by
 response, so a textured object can take the whole list and leave weakly textured cells (a wall
-of fine noise under dim light) without a candidate. With ``cell_retry`` > 0 (off by default) those cells (fewer than
-``cell_retry`` candidates, over all levels) are searched again at ``min_fast_threshold`` by one
-detection masked to them (:func:`retry_cells`): ORB-SLAM2's per-cell retry. An image with fewer corners
-than ``n_features`` in all is detected again at ``min_fast_threshold`` as a whole.
-docs/robustness.md, "ORB corners at minThFAST", measures what this changes for dynamic scenes.
+of fine noise under dim light) without a candidate. With ``cell_retry`` > 0 (off by default)
+those cells (fewer than ``cell_retry`` candidates, over all levels) are searched again at
+``min_fast_threshold`` by one detection masked to them (:func:`retry_cells`): ORB-SLAM2's
+per-cell retry. An image with fewer corners than ``n_features`` in all is detected again at
+``min_fast_threshold`` as a whole. docs/robustness.md, "ORB corners at minThFAST", measures
+what the per-cell retry changes for dynamic scenes.
 
 With a dynamic ``region`` (pixels known or believed to move) the budget leaves it: the region keeps
 ``region_share`` of the quota its area deserves (0 = DynaSLAM's extraction outside the dynamic masks,
@@ -341,20 +342,20 @@ def budget_candidates(gray: np.ndarray, cfg: OrbConfig, region: np.ndarray, quot
     full = np.bincount(lvl, minlength=cfg.n_levels) >= caps
     detections = 1
     sides = []
-    for sel, quota, pixels in ((inside, quotas_in, region), (~inside, level_quotas(cfg) - quotas_in, ~region)):
+    for sel, quota, pixels, static in ((inside, quotas_in, region, False), (~inside, level_quotas(cfg) - quotas_in, ~region, True)):
         if quota.sum() <= 0:
             sides.append(_candidates([]))
             continue
         got = np.bincount(lvl[sel], minlength=cfg.n_levels)
         crowded = bool(np.any(full & (got < np.ceil(cfg.oversample * quota))))
+        own = pixels if allowed is None else pixels & allowed
         if crowded or got.sum() < quota.sum():
-            own = pixels if allowed is None else pixels & allowed
             sides.append(_candidates(_detect(gray, cfg, cfg.min_fast_threshold, own.astype(np.uint8) * 255)[1]))
             detections += 1
         else:
             extra = []
-            if cfg.cell_retry > 0 and pixels is not region:  # the static side: its weakly textured cells again
-                extra = retry_cells(gray, cfg, arrays[0][sel], pixels if allowed is None else pixels & allowed)
+            if cfg.cell_retry > 0 and static:  # the static side: its weakly textured cells again
+                extra = retry_cells(gray, cfg, arrays[0][sel], own)
                 detections += bool(extra)
             if extra:
                 sides.append(_candidates([kps[i] for i in np.flatnonzero(sel)] + extra))
@@ -370,8 +371,8 @@ def retry_cells(gray: np.ndarray, cfg: OrbConfig, uv: np.ndarray, allowed: np.nd
     ``uv`` ``(N, 2)`` are the candidates' level-0 pixels (every level counts for the cell they fall in);
     ``allowed`` ``(H, W)`` bool limits the search (the pixels outside a dynamic region, a mask); a cell
     is searched only when at least half of it is searchable (allowed, and inside OpenCV's border of
-    ``edge_threshold`` pixels). One OpenCV detection, masked to those cells, asked for their share of ``n_features x oversample``
-    corners (at least 64). Returns the new ``cv2.KeyPoint`` objects (empty when no cell is short).
+    ``edge_threshold`` pixels). One OpenCV detection, masked to those cells, asked for their share of
+    ``n_features x oversample`` corners (at least 64). Returns the new ``cv2.KeyPoint`` objects (empty when no cell is short).
     """
     n_cells = cfg.grid_cols * cfg.grid_rows
     h, w = gray.shape
@@ -395,7 +396,7 @@ def retry_cells(gray: np.ndarray, cfg: OrbConfig, uv: np.ndarray, allowed: np.nd
     kps = _detect(gray, cfg, cfg.min_fast_threshold, m * 255, n)[1]
     if not kps:
         return []
-    inside = short.reshape(-1)[_cells(_keypoint_arrays(kps)[0], gray.shape, cfg)]  # the pyramid's corners near a cell edge
+    inside = short.reshape(-1)[_cells(cv2.KeyPoint_convert(kps).reshape(-1, 2), gray.shape, cfg)]  # the pyramid's corners near a cell edge
     return [k for k, ok in zip(kps, inside) if ok]
 
 
@@ -476,7 +477,7 @@ def extract_features(gray: np.ndarray, cfg: OrbConfig = OrbConfig(), mask: np.nd
             # Low texture: redo the detection with the lower FAST threshold (ORB-SLAM2 minThFAST).
             orb, kps = _detect(gray, cfg, cfg.min_fast_threshold)
         elif cfg.cell_retry > 0:  # ORB-SLAM2's retry per cell, where the image as a whole had corners enough
-            kps = kps + retry_cells(gray, cfg, _keypoint_arrays(kps)[0], None if mask is None else mask > 0)
+            kps = kps + retry_cells(gray, cfg, cv2.KeyPoint_convert(kps).reshape(-1, 2), None if mask is None else mask > 0)
         if not kps:
             return Features.empty()
         uv, octave, response = _keypoint_arrays(kps)

@@ -129,16 +129,6 @@ def test_real_tum_frame_person_dynamic_background_static():
     assert bg.sum() > 50
     assert (~dyn[bg]).mean() >= 0.9  # background with depth inside the boxes stays static (measured 0.93)
     assert not dyn[~in_box].any()
-    # fitted on the keypoints alone, the largest set of the left box is the wall behind the person: shown on
-    # the keypoints of the extraction without the per-cell retry (with it, more of the wall's keypoints are
-    # outside the boxes and the person wins the box: 0.94 of its keypoints dynamic)
-    from dynslam_lab.features.orb import OrbConfig
-
-    uv = extract_features(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), OrbConfig(cell_retry=0)).uv.astype(float)
-    z = depth_at(depth, uv)
-    in_mask = values_at(mask, uv).astype(bool)
-    in_box = ((uv[:, None, 0] >= boxes[None, :, 0]) & (uv[:, None, 0] <= boxes[None, :, 2])
-              & (uv[:, None, 1] >= boxes[None, :, 1]) & (uv[:, None, 1] <= boxes[None, :, 3])).any(axis=1)
-    bg = in_box & ~in_mask & np.isfinite(z)
+    # fitted on the keypoints alone, the largest set of the left box is the wall behind the person
     dyn_k, _ = screen_boxes(uv, z, boxes, DepthRansacConfig(model_from="keypoints"), rng=0)
     assert dyn_k[in_mask].mean() < 0.8 and (~dyn_k[bg]).mean() < 0.5

@@ -112,11 +112,6 @@ def _strong_and_faint(shape=(480, 640), seed=7) -> np.ndarray:
     return img.astype(np.uint8)
 
 
-def _cells_with_keypoints(uv: np.ndarray, cfg: OrbConfig, shape) -> set:
-    h, w = shape
-    return set(zip((uv[:, 0] * cfg.grid_cols // w).astype(int).tolist(), (uv[:, 1] * cfg.grid_rows // h).astype(int).tolist()))
-
-
 def test_cells_without_corners_are_searched_again_at_min_fast_threshold():
     """ORB-SLAM2's per-cell retry (cell_retry=1): the faint half gets keypoints where the detection at 20 left
     its cells empty; the corners added are those of OpenCV's own detection at 7 masked to the empty cells."""
@@ -132,7 +127,7 @@ def test_cells_without_corners_are_searched_again_at_min_fast_threshold():
     assert len(fast20) < 50 and len(fast7) > 2000
     assert right_off < 60 and right_on > 100, (right_off, right_on)
     cfg = OrbConfig(cell_retry=1)
-    cells_right = {c for c in _cells_with_keypoints(on.uv, cfg, img.shape) if c[0] >= cfg.grid_cols // 2}
+    cells_right = {c for c in orb_module._cells(on.uv, img.shape, cfg).tolist() if c % cfg.grid_cols >= cfg.grid_cols // 2}
     assert len(cells_right) >= 50, len(cells_right)  # of the ~130 inner cells of the faint half (none without the retry)
     # retry_cells against OpenCV: the detection at 7 masked to the cells the detection at 20 left empty
     first = orb_module._detect(img, cfg, cfg.fast_threshold)[1]

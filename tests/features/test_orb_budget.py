@@ -105,7 +105,7 @@ def test_both_sides_share_one_detection_where_neither_crowds_the_other():
     img = cv2.GaussianBlur((rng.random((480, 640)) * 255).astype(np.uint8), (5, 5), 1.2)  # even texture
     region = np.zeros(img.shape, bool)
     region[100:300, 200:360] = True
-    cfg = OrbConfig(cell_retry=0)  # the per-cell retry adds a detection where cells are empty (tests/features/test_orb.py)
+    cfg = OrbConfig(cell_retry=0)  # the per-cell retry (below) adds a detection where cells are empty
     r, _ = region_quotas(region, cfg, 0.25)
     orb, ins, outs, n_det = budget_candidates(img, cfg, region, r)
     assert n_det == 1
@@ -121,7 +121,7 @@ def test_both_sides_share_one_detection_where_neither_crowds_the_other():
     f = extract_features(img, cfg, region=region, region_share=0.25)
     assert {(float(u), float(v)) for u, v in f.uv} <= {(x, y) for x, y, _ in ref}
     # with the retry, the outside adds corners of the cells its share of the list left empty, and nothing else
-    _, ins1, outs1, n1 = budget_candidates(img, OrbConfig(), region, r)
+    _, ins1, outs1, n1 = budget_candidates(img, OrbConfig(cell_retry=1), region, r)
     assert _rows(ins1) == _rows(ins) and set(_rows(outs)) <= set(_rows(outs1)) and n1 == 1 + (len(outs1.index) > len(outs.index))
     np.testing.assert_array_equal(_signature(f), _signature(extract_features(img, cfg, region=region, region_share=0.25)))
 
