@@ -131,8 +131,10 @@ def test_bad_input_errors():
         PoseGraphConfig(loss="l3")
 
 
-def test_reaches_the_scipy_minimum_on_a_noisy_graph():
-    """Our Levenberg-Marquardt and scipy's least_squares on the same inconsistent graph."""
+@pytest.mark.parametrize("rotation_weight", [1.0, PoseGraphConfig().rotation_weight])
+def test_reaches_the_scipy_minimum_on_a_noisy_graph(rotation_weight):
+    """Our Levenberg-Marquardt and scipy's least_squares on the same inconsistent graph (ORB-SLAM2's
+    identity weight and the default)."""
     from dynslam_lab.slam.scipy_reference import pose_graph_least_squares
 
     rng = np.random.default_rng(7)
@@ -141,7 +143,22 @@ def test_reaches_the_scipy_minimum_on_a_noisy_graph():
     Z = relative_pose(T_gt[e[:, 0]], T_gt[e[:, 1]])
     Z = np.stack([make_pose(so3_exp(rng.normal(0, 0.02, 3)), rng.normal(0, 0.03, 3)) @ z for z in Z])
     w = rng.uniform(0.5, 2.0, len(e))
-    res = optimize_pose_graph(T_gt, e, Z, fixed=[0], weights=w, config=PoseGraphConfig(max_iterations=50))
-    T_ref, cost_ref = pose_graph_least_squares(T_gt, e, Z, [0], w)
+    res = optimize_pose_graph(T_gt, e, Z, fixed=[0], weights=w,
+                              config=PoseGraphConfig(max_iterations=50, rotation_weight=rotation_weight))
+    T_ref, cost_ref = pose_graph_least_squares(T_gt, e, Z, [0], w, rotation_weight=rotation_weight)
     assert res.final_cost == pytest.approx(0.5 * cost_ref, rel=1e-6)
     np.testing.assert_allclose(res.poses, T_ref, atol=1e-5)  # scipy differentiates numerically
+
+
+def test_rotation_weight_is_the_displacement_of_a_point_that_far():
+    """Hand-computed: an edge whose error is a rotation of 0.01 rad about z has the rotation residual
+    ``rotation_weight * 0.01``, which is (to first order) how far that rotation moves a point
+    ``rotation_weight`` metres from the camera."""
+    cfg = PoseGraphConfig()
+    T_i, T_j = np.eye(4), make_pose(so3_exp(np.array([0.0, 0.0, 0.01])), np.zeros(3))
+    R, t = np.stack([T_i[:3, :3], T_j[:3, :3]]), np.zeros((2, 3))
+    r = edge_residuals(R, t, np.array([[0, 1]]), np.eye(4)[None], np.ones(1), cfg.rotation_weight)
+    np.testing.assert_allclose(r[0, :3], [0.0, 0.0, 0.01 * cfg.rotation_weight], atol=1e-12)
+    np.testing.assert_allclose(r[0, 3:], 0.0, atol=1e-12)
+    X = np.array([cfg.rotation_weight, 0.0, 0.0])  # a point rotation_weight metres away, moved by the rotation
+    assert np.linalg.norm(T_j[:3, :3] @ X - X) == pytest.approx(np.linalg.norm(r[0, :3]), rel=1e-4)
