@@ -98,7 +98,7 @@ def ba_cost(poses, X, oc, op, obs):
 
 
 def pose_cost(T, X, obs):
-    return opt._evaluate_pose(T[:3, :3], T[:3, 3], X, obs, CAM, BF, opt.HUBER_DELTA2)[0]
+    return opt._evaluate_pose(T[:3, :3], T[:3, 3], opt._PoseTerms(X, obs, CAM, BF), opt.HUBER_DELTA2)[0]
 
 
 # ------------------------------------------------------------------------------ GTSAM (optional)
@@ -220,15 +220,16 @@ def main() -> None:
 
         T0, e, Z = pose_graph_problem(rng)
         name = f"pose graph ({len(T0)} kf, {len(e)} edges)"
+        w_rot = 1.0  # the rotation weight of the problem every solver is given: GTSAM's unit noise model
 
         def pg_cost(T):
-            r = edge_residuals(T[:, :3, :3], T[:, :3, 3], e, Z, np.ones(len(e)))
+            r = edge_residuals(T[:, :3, :3], T[:, :3, 3], e, Z, np.ones(len(e)), w_rot)
             return float((r**2).sum())
 
-        ms, res = timed(lambda: optimize_pose_graph(T0, e, Z, fixed=[0], config=PoseGraphConfig(max_iterations=50)),
+        ms, res = timed(lambda: optimize_pose_graph(T0, e, Z, fixed=[0], config=PoseGraphConfig(max_iterations=50, rotation_weight=w_rot)),
                         args.repeat)
         rows.append((name, "ours", ms, pg_cost(res.poses)))
-        ms, (T, _) = timed(lambda: pose_graph_least_squares(T0, e, Z, [0], np.ones(len(e))), args.repeat)
+        ms, (T, _) = timed(lambda: pose_graph_least_squares(T0, e, Z, [0], np.ones(len(e)), rotation_weight=w_rot), args.repeat)
         rows.append((name, "scipy", ms, pg_cost(T)))
         if _gtsam() is not None:
             ms, T = timed(lambda: gtsam_pose_graph(T0, e, Z), args.repeat)

@@ -120,12 +120,14 @@ _LOSS = {  # rho(z)
 
 
 def edge_residuals(
-    R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarray, sqrt_w: np.ndarray, rotation_weight: float = 1.0
+    R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarray, sqrt_w: np.ndarray, rotation_weight: float
 ) -> np.ndarray:
     """Residuals ``(E, 6)``: ``log(Z_ij^-1 T_i^-1 T_j)`` (rotation vector in rad, translation in m), weighted.
 
     ``R (K, 3, 3)``, ``t (K, 3)`` are the poses T_w_c; ``edges (E, 2)`` index them; ``Z (E, 4, 4)``
-    the measured ``T_i_j``; ``sqrt_w (E,)`` square roots of the edge weights.
+    the measured ``T_i_j``; ``sqrt_w (E,)`` square roots of the edge weights; ``rotation_weight`` (m) multiplies
+    the rotation part (``PoseGraphConfig.rotation_weight``; no default here, so that every caller states which
+    problem it solves).
     """
     i, j = edges[:, 0], edges[:, 1]
     Ri_T = np.swapaxes(R[i], 1, 2)

@@ -154,7 +154,7 @@ def bundle_adjustment_least_squares(poses: dict[int, np.ndarray], fixed: set[int
 
 
 def pose_graph_least_squares(T_w_c: np.ndarray, edges: np.ndarray, T_i_j: np.ndarray, fixed, weights: np.ndarray,
-                             rotation_weight: float = 1.0, max_nfev: int = 50) -> tuple[np.ndarray, float]:
+                             rotation_weight: float, max_nfev: int = 50) -> tuple[np.ndarray, float]:
     """The pose graph of :mod:`.pose_graph` with scipy: finite-difference Jacobian with its sparsity
     (each 6-row edge residual depends on the 12 parameters of its two poses).
 

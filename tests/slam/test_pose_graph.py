@@ -30,7 +30,7 @@ def test_residual_zero_for_consistent_measurements():
     T = circle_poses(8)
     e = chain_edges(8)
     Z = relative_pose(T[e[:, 0]], T[e[:, 1]])
-    r = edge_residuals(T[:, :3, :3], T[:, :3, 3], e, Z, np.ones(len(e)))
+    r = edge_residuals(T[:, :3, :3], T[:, :3, 3], e, Z, np.ones(len(e)), PoseGraphConfig().rotation_weight)
     assert r.shape == (7, 6)
     np.testing.assert_allclose(r, 0, atol=1e-12)
 
