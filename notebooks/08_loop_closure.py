@@ -307,6 +307,30 @@ print(f"ATE before {ate(before) * 100:.1f} cm, after {ate(after) * 100:.1f} cm")
 # `summary.json` counts the loops and `--no-loop` turns loop closing off.
 
 # %% [markdown]
+# ### Where the misclosure goes: the information of an edge
+#
+# Every edge above counts the same (ORB-SLAM2's identity information). A real edge is pinned better in
+# some directions than in others: a loop matched only on a far wall cannot tell a sideways shift from
+# a turn. `optimize_pose_graph(..., information=...)` takes a 6 x 6 information matrix per edge
+# (rotation in rad, translation in m; `pose_graph.information = "points"` computes them from the shared
+# map points in a run, docs/loop_closing.md section 4). Three poses on a line, two short edges and one
+# long edge that says 2.1 m instead of 2.0: with the identity the 10 cm are shared, with the second
+# edge weak along x (information 1 against 10^6) that edge takes all of it.
+
+# %%
+tri = np.stack([make_pose(np.eye(3), np.array([x, 0.0, 0.0])) for x in (0.0, 1.0, 2.0)])
+tri_edges = np.array([[0, 1], [1, 2], [0, 2]])
+tri_meas = relative_pose(tri[tri_edges[:, 0]], tri[tri_edges[:, 1]])
+tri_meas[2] = make_pose(np.eye(3), np.array([2.1, 0.0, 0.0]))
+tri_info = np.tile(1e6 * np.eye(6), (3, 1, 1))
+tri_info[1, 3, 3] = 1.0
+x_plain = optimize_pose_graph(tri, tri_edges, tri_meas, fixed=[0]).poses[:, 0, 3]
+x_info = optimize_pose_graph(tri, tri_edges, tri_meas, fixed=[0], information=tri_info).poses[:, 0, 3]
+print("x of the poses, identity information:", np.round(x_plain, 4))
+print("x of the poses, edge 1-2 weak along x:", np.round(x_info, 4))
+assert abs(x_info[1] - 1.0) < 1e-3 and abs(x_info[2] - 2.1) < 1e-3
+
+# %% [markdown]
 # ### Exercise 1: the L1 score by hand
 #
 # Compute the score $s$ of keyframes 0 and 1 from their vectors (`bows[0]`, `bows[1]`: sparse,

@@ -50,7 +50,8 @@ from scipy.spatial.transform import Rotation
 from ..geometry.se3 import skew
 from .optimize import solve_spd
 
-__all__ = ["PoseGraphConfig", "PoseGraphResult", "optimize_pose_graph", "edge_residuals", "correct_points"]
+__all__ = ["PoseGraphConfig", "PoseGraphResult", "optimize_pose_graph", "edge_residuals", "sqrt_information",
+           "correct_points"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,9 @@ class PoseGraphConfig:
     rotation_weight: float = 3.0  # m: the rotation residual (rad) times this, so that it counts as the displacement of a point this far
     # away (a room 2-4 m deep; translation residuals in m); ours, ORB-SLAM2 uses identity (1); docs/loop_closing.md "Where the
     # correction puts a plain room's drift": 3 lowered `loop_flat`'s worst ATE 29.4 -> 24.6 mm, other rooms unchanged
+    information: str = "identity"  # each edge's information matrix: "identity" (ORB-SLAM2; rotation counted rotation_weight times), "points" (from the map points the edge's keyframes share, the loop's from its matches; loop_closing.correction.edge_information); ours
+    floor_rotation_deg: float = 1.0  # "points": a prior of this rotation sigma added to every edge (an edge with no shared point, tracked by depth); ours, as tracking.dense_prior_rotation_deg
+    floor_translation: float = 0.02  # m, the same for the translation; ours, as tracking.dense_prior_translation
     loss: str = "linear"  # robust loss on an edge's squared residual (scipy's names); ORB-SLAM2 uses none here (a robust loss would mute the loop edge)
 
     def __post_init__(self) -> None:
@@ -71,6 +75,10 @@ class PoseGraphConfig:
             raise ValueError(f"PoseGraphConfig.min_covisibility_weight must be >= 0, got {self.min_covisibility_weight}")
         if self.rotation_weight <= 0:
             raise ValueError(f"PoseGraphConfig.rotation_weight must be > 0, got {self.rotation_weight}")
+        if self.information not in ("identity", "points"):
+            raise ValueError(f"PoseGraphConfig.information must be 'identity' or 'points', got {self.information!r}")
+        if not (self.floor_rotation_deg > 0 and self.floor_translation > 0):
+            raise ValueError("PoseGraphConfig.floor_rotation_deg and floor_translation must be > 0")
         if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
             raise ValueError(f"PoseGraphConfig.loss must be a scipy least_squares loss, got {self.loss!r}")
 
@@ -120,14 +128,16 @@ _LOSS = {  # rho(z)
 
 
 def edge_residuals(
-    R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarray, sqrt_w: np.ndarray, rotation_weight: float
+    R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarray, sqrt_w: np.ndarray, rotation_weight: float,
+    sqrt_info: np.ndarray | None = None,
 ) -> np.ndarray:
     """Residuals ``(E, 6)``: ``log(Z_ij^-1 T_i^-1 T_j)`` (rotation vector in rad, translation in m), weighted.
 
     ``R (K, 3, 3)``, ``t (K, 3)`` are the poses T_w_c; ``edges (E, 2)`` index them; ``Z (E, 4, 4)``
     the measured ``T_i_j``; ``sqrt_w (E,)`` square roots of the edge weights; ``rotation_weight`` (m) multiplies
     the rotation part (``PoseGraphConfig.rotation_weight``; no default here, so that every caller states which
-    problem it solves).
+    problem it solves); ``sqrt_info (E, 6, 6)``, when given, multiplies each edge's residual on the left
+    (:func:`sqrt_information`).
     """
     i, j = edges[:, 0], edges[:, 1]
     Ri_T = np.swapaxes(R[i], 1, 2)
@@ -137,7 +147,22 @@ def edge_residuals(
     R_e = Rz_T @ R_ij
     t_e = np.einsum("eab,eb->ea", Rz_T, t_ij - Z[:, :3, 3])
     r = np.concatenate([rotation_weight * Rotation.from_matrix(R_e).as_rotvec(), t_e], axis=1)
+    if sqrt_info is not None:
+        r = np.einsum("eab,eb->ea", sqrt_info, r)
     return r * sqrt_w[:, None]
+
+
+def sqrt_information(information: np.ndarray, rotation_weight: float) -> np.ndarray:
+    """``L (E, 6, 6)`` with ``L^T L`` the information of each edge's residual as :func:`edge_residuals`
+    weights it (rotation scaled by ``rotation_weight``), from ``information (E, 6, 6)`` of the plain
+    residual ``(rotation vector in rad, translation in m)`` (symmetric positive definite)."""
+    s = np.array([1.0 / rotation_weight] * 3 + [1.0] * 3)
+    info = np.asarray(information, float) * s[:, None] * s[None, :]
+    info = 0.5 * (info + np.swapaxes(info, 1, 2))
+    try:
+        return np.swapaxes(np.linalg.cholesky(info), 1, 2)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError("optimize_pose_graph: every information matrix must be symmetric positive definite") from exc
 
 
 def optimize_pose_graph(
@@ -147,6 +172,7 @@ def optimize_pose_graph(
     fixed: np.ndarray | list[int] = (0,),
     weights: np.ndarray | None = None,
     config: PoseGraphConfig = PoseGraphConfig(),
+    information: np.ndarray | None = None,
 ) -> PoseGraphResult:
     """Optimise poses so that their relative poses agree with the edge measurements.
 
@@ -158,6 +184,10 @@ def optimize_pose_graph(
     fixed : indices of poses held at their initial value (at least one: the gauge).
     weights : ``(E,)`` positive edge weights (default 1).
     config : iterations, rotation weight, loss.
+    information : ``(E, 6, 6)`` information matrix of each edge's residual ``(rotation vector (rad),
+        translation (m))``, symmetric positive definite, multiplied by the edge's weight (default: the
+        identity, with the rotation counted ``rotation_weight`` times; with it, ``rotation_weight`` only
+        changes the numerical scaling, not the solution).
 
     Returns
     -------
@@ -189,11 +219,17 @@ def optimize_pose_graph(
     if len(w) != len(edges) or np.any(~(w > 0)):
         raise ValueError(f"optimize_pose_graph: weights must be {len(edges)} positive numbers")
     sqrt_w = np.sqrt(w)
+    L = None
+    if information is not None:
+        info = np.asarray(information, dtype=np.float64)
+        if info.shape != (len(edges), 6, 6):
+            raise ValueError(f"optimize_pose_graph: information must be ({len(edges)}, 6, 6), got {info.shape}")
+        L = sqrt_information(info, config.rotation_weight)
     R0, t0 = T[:, :3, :3].copy(), T[:, :3, 3].copy()
     free = np.flatnonzero(~fixed_mask)
     if len(edges) == 0 or len(free) == 0:
         return PoseGraphResult(T.copy(), 0.0, 0.0, 0)
-    cost0, sol = _lm_pose_graph(R0, t0, free, edges, Z, sqrt_w, config)
+    cost0, sol = _lm_pose_graph(R0, t0, free, edges, Z, sqrt_w, config, L)
     out = np.tile(np.eye(4), (K, 1, 1))
     out[:, :3, :3], out[:, :3, 3] = sol[0], sol[1]
     return PoseGraphResult(out, cost0, sol[2], sol[3])
@@ -218,9 +254,10 @@ def _edge_jacobian(R: np.ndarray, t: np.ndarray, edges: np.ndarray, Z: np.ndarra
 
 
 def _lm_pose_graph(R: np.ndarray, t: np.ndarray, free: np.ndarray, edges: np.ndarray, Z: np.ndarray,
-                   sqrt_w: np.ndarray, config: PoseGraphConfig):
+                   sqrt_w: np.ndarray, config: PoseGraphConfig, L: np.ndarray | None = None):
     """Levenberg-Marquardt over the free poses; returns ``(initial cost, (R, t, final cost, iterations))``
-    with ``cost = 0.5 sum w rho(||r_e||^2)``."""
+    with ``cost = 0.5 sum w rho(||L_e r_e||^2)`` (``L (E, 6, 6)`` square roots of the information, identity
+    when None)."""
     K = len(R)
     col_of = np.full(K, -1, np.int64)
     col_of[free] = np.arange(len(free))
@@ -229,7 +266,8 @@ def _lm_pose_graph(R: np.ndarray, t: np.ndarray, free: np.ndarray, edges: np.nda
 
     def evaluate(R, t):
         r = edge_residuals(R, t, edges, Z, np.ones(len(edges)), config.rotation_weight)
-        z = sqrt_w**2 * np.einsum("ij,ij->i", r, r)
+        rw = r if L is None else np.einsum("eab,eb->ea", L, r)
+        z = sqrt_w**2 * np.einsum("ij,ij->i", rw, rw)
         return 0.5 * float(loss(z).sum()), r, z
 
     cost, r, z = evaluate(R, t)
@@ -237,6 +275,8 @@ def _lm_pose_graph(R: np.ndarray, t: np.ndarray, free: np.ndarray, edges: np.nda
     for it in range(1, config.max_iterations + 1):
         w = sqrt_w**2 * dloss(z)  # IRLS weight of each edge
         Ji, Jj = _edge_jacobian(R, t, edges, Z, r, config.rotation_weight)
+        if L is not None:  # whitened: L r and L J
+            Ji, Jj = L @ Ji, L @ Jj
         blocks, rows, cols = [], [], []
         for end, J in ((0, Ji), (1, Jj)):
             c = col_of[edges[:, end]]
@@ -248,7 +288,8 @@ def _lm_pose_graph(R: np.ndarray, t: np.ndarray, free: np.ndarray, edges: np.nda
                             (np.concatenate([x.ravel() for x in rows]), np.concatenate([x.ravel() for x in cols]))),
                            shape=(6 * len(edges), n))
         H = (Jw.T @ Jw).tocsr()
-        g = Jw.T @ (r * np.sqrt(w)[:, None]).ravel()
+        rw = r if L is None else np.einsum("eab,eb->ea", L, r)
+        g = Jw.T @ (rw * np.sqrt(w)[:, None]).ravel()
         diag = H.diagonal()
         while True:
             dx = solve_spd(H + sp.diags(lam * diag + 1e-12), -g)

@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from ..camera import PinholeCamera
 from .optimize import HUBER_DELTA2, Observations, project_stereo, stereo_jacobian
-from .pose_graph import edge_residuals
+from .pose_graph import edge_residuals, sqrt_information
 
 __all__ = ["pose_only_least_squares", "bundle_adjustment_least_squares", "pose_graph_least_squares"]
 
@@ -154,12 +154,15 @@ def bundle_adjustment_least_squares(poses: dict[int, np.ndarray], fixed: set[int
 
 
 def pose_graph_least_squares(T_w_c: np.ndarray, edges: np.ndarray, T_i_j: np.ndarray, fixed, weights: np.ndarray,
-                             rotation_weight: float, max_nfev: int = 50) -> tuple[np.ndarray, float]:
+                             rotation_weight: float, max_nfev: int = 50,
+                             information: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The pose graph of :mod:`.pose_graph` with scipy: finite-difference Jacobian with its sparsity
-    (each 6-row edge residual depends on the 12 parameters of its two poses).
+    (each 6-row edge residual depends on the 12 parameters of its two poses); ``information (E, 6, 6)``
+    as :func:`~.pose_graph.optimize_pose_graph` takes it.
 
-    Returns ``(T_w_c (K, 4, 4), cost = sum w ||r||^2)``.
+    Returns ``(T_w_c (K, 4, 4), cost = sum w ||L r||^2)``.
     """
+    L = None if information is None else sqrt_information(information, rotation_weight)
     T = np.asarray(T_w_c, float)
     K = len(T)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
@@ -178,7 +181,7 @@ def pose_graph_least_squares(T_w_c: np.ndarray, edges: np.ndarray, T_i_j: np.nda
 
     def fun(x):
         R, t = poses(x)
-        return edge_residuals(R, t, edges, T_i_j, sqrt_w, rotation_weight).ravel()
+        return edge_residuals(R, t, edges, T_i_j, sqrt_w, rotation_weight, L).ravel()
 
     rows, cols = [], []
     base = (6 * np.arange(len(edges)))[:, None] + np.arange(6)

@@ -404,3 +404,49 @@ def test_global_ba_holds_keyframes_with_few_points(min_observations):
     moved = np.abs(corr.T_new[index[3]] - T_est[3]).max()
     assert (moved == 0.0) if min_observations == 30 else (moved > 1e-3)
     assert corr.stats["gba_held_weak"] == (1 if min_observations == 30 else 0)
+
+
+def test_points_information_matches_opencv_finite_differences():
+    """The pose information of :func:`_points_information` equals ``J^T J`` with ``J`` the finite-difference
+    Jacobian of OpenCV's projection (``cv2.projectPoints``) and of the virtual right pixel, under the right
+    perturbation ``T <- T exp(eps)`` of the camera's pose (``X' = exp(eps)^-1 X``)."""
+    import cv2
+
+    from dynslam_lab.slam.loop_closing.correction import _points_information
+
+    cam = PinholeCamera(FX, FX, 319.5, 239.5)
+    bf = 400.0
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1, 1, 40), rng.uniform(1.0, 4.5, 40)])
+    sigma = 1.2 ** rng.integers(0, 4, 40).astype(float)
+    has_d = rng.random(40) < 0.8
+    K = np.array([[FX, 0, 319.5], [0, FX, 239.5], [0, 0, 1]])
+
+    def rows(eps):
+        T = make_pose(so3_exp(eps[:3]), eps[3:])
+        Xp = transform_points(se3_inv(T), X)
+        uv = cv2.projectPoints(Xp.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, None)[0].reshape(-1, 2)
+        ur = uv[:, 0] - bf / Xp[:, 2]
+        return np.column_stack([uv, np.where(has_d, ur, 0.0)]) / sigma[:, None]
+
+    h = 1e-6
+    J = np.stack([(rows(h * np.eye(6)[a]) - rows(-h * np.eye(6)[a])) / (2 * h) for a in range(6)], axis=-1)
+    H_ref = np.einsum("kia,kib->ab", J, J)
+    H = _points_information(X, sigma, has_d, cam, bf)
+    np.testing.assert_allclose(H, H_ref, rtol=1e-5, atol=1e-3 * np.abs(H_ref).max() * 1e-3)
+
+
+def test_points_at_one_depth_leave_the_shift_and_turn_weak():
+    """Points on a far fronto-parallel wall determine a sideways shift combined with a turn (x + yaw)
+    far worse than points spread in depth: the smallest eigenvalue of the information (rad, m) drops."""
+    from dynslam_lab.slam.loop_closing.correction import _points_information
+
+    cam = PinholeCamera(FX, FX, 319.5, 239.5)
+    rng = np.random.default_rng(5)
+    xy = np.column_stack([rng.uniform(-1.5, 1.5, 150), rng.uniform(-1, 1, 150)])
+    wall = np.column_stack([xy * 4.4 / 3.0, np.full(150, 4.4)])
+    spread = np.column_stack([xy, rng.uniform(0.8, 4.4, 150)])
+    ones, d = np.ones(150), np.ones(150, bool)
+    lam_wall = np.linalg.eigvalsh(_points_information(wall, ones, d, cam, 400.0))[0]
+    lam_spread = np.linalg.eigvalsh(_points_information(spread, ones, d, cam, 400.0))[0]
+    assert lam_wall < 0.1 * lam_spread

@@ -239,7 +239,7 @@ class LoopCloser:
             timings_ms={"query": q_ms, "verify": v_ms},
         )
         job = (snap, int(kf.id), int(cand_id), check.correction, current_group, check.group, check.pids[check.ip],
-               check.ik, self.config)
+               check.ik, self.config, self.camera, self.bf)
         result.timings_ms["snapshot"] = 1e3 * (time.perf_counter() - t0)
         self.corrector.submit(_timed(lambda: run_loop_correction(*job), "correct", result), ("pose_graph", result))
         return result

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ...camera import PinholeCamera
-from ...geometry.se3 import se3_inv, transform_points
+from ...geometry.se3 import se3_inv, skew, transform_points
 from ..local_mapping import gather_observations, replace_points
 from ..optimize import local_bundle_adjustment
 from ..pose_graph import optimize_pose_graph
@@ -174,9 +174,80 @@ def essential_graph(snap: Snapshot, T_init: np.ndarray, current_group: list[int]
     return np.asarray(edges, np.int64), np.stack(Z), np.asarray(w, float)
 
 
+def _points_information(X_c: np.ndarray, uv_sigma: np.ndarray, has_depth: np.ndarray, camera: PinholeCamera,
+                        bf: float) -> np.ndarray:
+    """``(6, 6)`` information of a camera's pose, as the right perturbation ``(omega, tau)`` of its pose
+    relative to the frame the points ``X_c (K, 3)`` (in the camera) are fixed in, from their pixels
+    (sigma ``uv_sigma (K,)``) and, where ``has_depth``, their virtual right pixels ``u - bf / z``: with
+    ``X' = X + [X]_x omega - tau``, ``H = sum J^T J``, ``J`` the whitened Jacobian of the ``(u, v, u_R)``
+    rows (those of motion-only BA, :func:`~dynslam_lab.slam.optimize.optimize_pose`)."""
+    z = X_c[:, 2]
+    ok = z > 1e-6
+    X, s, d = X_c[ok], uv_sigma[ok], has_depth[ok]
+    if len(X) == 0:
+        return np.zeros((6, 6))
+    iz = 1.0 / X[:, 2]
+    P = np.zeros((len(X), 3, 3))
+    P[:, 0, 0] = camera.fx * iz
+    P[:, 0, 2] = -camera.fx * X[:, 0] * iz**2
+    P[:, 1, 1] = camera.fy * iz
+    P[:, 1, 2] = -camera.fy * X[:, 1] * iz**2
+    P[:, 2] = P[:, 0]
+    P[:, 2, 2] += bf * iz**2
+    P[:, 2] *= d[:, None]
+    D = np.concatenate([skew(X), np.broadcast_to(-np.eye(3), (len(X), 3, 3))], axis=2)
+    J = (P @ D) / s[:, None, None]
+    return np.einsum("kia,kib->ab", J, J)
+
+
+def edge_information(snap: Snapshot, edges: np.ndarray, loop_edge: int | None, loop_obs: tuple | None,
+                     T_init: np.ndarray, camera: PinholeCamera, bf: float, config: LoopClosingConfig) -> np.ndarray:
+    """``(E, 6, 6)`` information of each essential-graph edge ``(i, j)`` (ours; ORB-SLAM2 uses the identity).
+
+    An odometry edge (spanning tree, covisibility, an earlier loop) is measured from the map points its two
+    keyframes share: their observations in the keyframe ``j`` with the points held where they are
+    (:func:`_points_information`, in ``j``'s frame, which is where the edge's residual lives). The new
+    loop edge (index ``loop_edge``, query last) is measured by the loop's map matches in the query,
+    ``loop_obs = (query keyframe, keypoint indices, point rows)``, at the corrected pose. Each gets
+    ``pose_graph.floor_*`` added (a prior of a degree and two centimetres: what a keyframe tracked by
+    depth alone, with no point shared, is still worth; tracking's dense prior).
+
+    The information knows which directions the points determine: matches at one depth (a far wall)
+    leave the sideways-shift-and-turn direction weak, and the graph then takes it from the odometry.
+    """
+    pg = config.pose_graph
+    floor = np.diag([np.radians(pg.floor_rotation_deg) ** -2] * 3 + [pg.floor_translation ** -2] * 3)
+    out = np.tile(floor, (len(edges), 1, 1))
+    alive = np.isin(snap.obs_kf, snap.ids)
+    o_kf, o_pt, o_kp = snap.obs_kf[alive], snap.obs_pt[alive], snap.obs_kp[alive]
+    order = np.lexsort((o_pt, o_kf))  # by keyframe, then point
+    starts = np.searchsorted(o_kf[order], snap.ids)
+    ends = np.searchsorted(o_kf[order], snap.ids, side="right")
+    per_kf = [(o_pt[order[a:b]], o_kp[order[a:b]]) for a, b in zip(starts.tolist(), ends.tolist())]
+
+    def info(kf, kp: np.ndarray, rows_xyz: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
+        X = transform_points(se3_inv(T_w_c), snap.xyz[rows_xyz])
+        return _points_information(X, snap.scale_factor ** np.asarray(kf.octave)[kp].astype(float),
+                                   np.isfinite(kf.points_c[kp, 2]) & (kf.points_c[kp, 2] > 0), camera, bf)
+
+    for e, (i, j) in enumerate(np.asarray(edges).tolist()):
+        if e == loop_edge:
+            if loop_obs is not None:
+                kf, kp, prow = loop_obs
+                out[e] += info(kf, kp, prow, T_init[j])
+            continue
+        pi, _ = per_kf[i]
+        pj, kj = per_kf[j]
+        _, _, bj = np.intersect1d(pi, pj, assume_unique=True, return_indices=True)
+        if len(bj):
+            out[e] += info(snap.keyframes[int(snap.ids[j])], kj[bj], np.searchsorted(snap.points, pj[bj]), snap.T_w_c[j])
+    return out
+
+
 def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarray, current_group: list[int],
                         loop_group: list[int], loop_pids: np.ndarray, query_kp: np.ndarray,
-                        config: LoopClosingConfig) -> Correction:
+                        config: LoopClosingConfig, camera: PinholeCamera | None = None,
+                        bf: float | None = None) -> Correction:
     """Steps 2 of the module docstring (worker thread): corrected guesses, fusion search, pose graph."""
     index = snap.index()
     T_init = snap.T_w_c.copy()
@@ -197,11 +268,26 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
             pts_k = np.where(np.asarray(kf.static, bool)[:, None], kf.points_c, np.nan)
             ip, ik = match_points_3d(X_k, snap.descriptors[li], pts_k, kf.descriptors, config.inlier_abs, config.inlier_rel)
             fuse.append((int(k), ik, lp[ip]))
-    edges, Z, w = essential_graph(snap, T_init, group, loop_group, config)
+    info = None
+    if config.pose_graph.information == "points":
+        if camera is None or bf is None:
+            raise ValueError("run_loop_correction: pose_graph.information = 'points' needs the camera and bf")
+        # one loop edge (query - loop keyframe) with the loop's own information; the other pairs of the two
+        # groups would repeat the same measurement
+        edges, Z, w = essential_graph(snap, T_init, [query_id], [loop_id], config)
+        loop_kp = np.asarray(query_kp, np.int64)
+        prow = np.searchsorted(snap.points, np.asarray(loop_pids, np.int64))
+        ok = (prow < len(snap.points)) & (snap.points[np.minimum(prow, len(snap.points) - 1)] == loop_pids)
+        q = snap.keyframes[int(query_id)]
+        info = edge_information(snap, edges, 0 if len(edges) and query_id in index and loop_id in index else None,
+                                (q, loop_kp[ok], prow[ok]), T_init, camera, bf, config)
+    else:
+        edges, Z, w = essential_graph(snap, T_init, group, loop_group, config)
     if len(edges) == 0:
         T_new = T_init
     else:
-        T_new = optimize_pose_graph(T_init, edges, Z, fixed=[index[loop_id]], weights=w, config=config.pose_graph).poses
+        T_new = optimize_pose_graph(T_init, edges, Z, fixed=[index[loop_id]], weights=w, config=config.pose_graph,
+                                    information=info).poses
     return Correction(snap.ids, snap.T_w_c, T_new, fuse=fuse, loop_edge=(int(loop_id), int(query_id)),
                       stats={"edges": int(len(edges)), "keyframes": int(len(snap.ids))})
 
