@@ -47,7 +47,9 @@ from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp,
 from dynslam_lab.slam.frame import keypoint_depths
 from dynslam_lab.slam.keyframe_database import KeyframeDatabase
 from dynslam_lab.slam.loop_closing import LoopClosingConfig, verify_loop
+from dynslam_lab.slam.optimize import Observations, pose_uncertainty
 from dynslam_lab.slam.pose_graph import optimize_pose_graph
+from dynslam_lab.slam.tracking import TrackingConfig
 from dynslam_lab.slam.vocabulary import bow_score, bow_score_many, default_vocabulary
 from dynslam_lab.viz.colors import hex_color
 from dynslam_lab.viz.exercises import check
@@ -241,6 +243,30 @@ print(f"the loop at the defaults: {ver.n_inliers} of {ver.n_matches} inliers, T_
 # too tight for the depth noise loses real loops. The other side of the room has no matches at
 # all: a wrong place already fails at the descriptor stage. The loop itself (keyframe 1): all
 # matches are inliers at the defaults.
+
+# %% [markdown]
+# **How well do the matches fix the loop pose?** Inliers are not enough: matches that all lie on one
+# far wall let a sideways shift and a turn explain them alike. The loop closer therefore asks how
+# uncertain the query camera's centre is under the loop's matches (`pose_uncertainty`: the inverse of
+# motion-only BA's information, one pixel of noise) and, above `max_loop_sigma` (1 cm), waits a few
+# keyframes for a better-conditioned view of the revisit (docs/loop_closing.md, "A loop pose the
+# matches determine"). Here, the query's inliers against keyframe 1, and the same test on the inliers
+# farther than 2.2 m only:
+
+# %%
+def loop_sigma(v, cand, min_depth=0.0):
+    a, b = kfs[q], kfs[cand]
+    ok = v.inliers & (a["pts"][v.idx_q, 2] > min_depth)
+    iq, ic = v.idx_q[ok], v.idx_c[ok]
+    obs = Observations.from_keypoints(a["feats"].uv[iq], a["pts"][iq, 2], a["feats"].octave[iq], BF, orb.scale_factor)
+    return int(ok.sum()), pose_uncertainty(v.T_q_c, b["pts"][ic], obs, kfs[q]["frame"].camera, BF)[0]
+
+
+BF = TrackingConfig().bf  # the virtual stereo baseline x fx of motion-only BA
+for label, zmin in (("all inliers", 0.0), ("inliers beyond 2.2 m", 2.2)):
+    n, sigma = loop_sigma(ver, 1, zmin)
+    print(f"{label}: {n} matches, centre sigma {1000 * sigma:.1f} mm (max_loop_sigma "
+          f"{1000 * LoopClosingConfig().max_loop_sigma:.0f} mm)")
 
 # %% [markdown]
 # ## 4. Pose graph optimisation

@@ -526,6 +526,9 @@ class System:
         """Wait for the loop closer's pending corrections and apply them (the outputs call this first);
         a correction that failed is recorded in :attr:`loop_errors`."""
         self._apply_loop_corrections({}, self.loop_errors, wait=True)
+        close = getattr(self.loop_closer, "close_pending", None)
+        if close is not None and close(self.map):  # a loop kept waiting for a better-conditioned one
+            self._apply_loop_corrections({}, self.loop_errors, wait=True)
 
     def mark_lost(self, index: int) -> None:
         """Record a frame that could not be processed at all (unreadable image)."""

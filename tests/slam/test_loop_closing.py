@@ -450,3 +450,38 @@ def test_points_at_one_depth_leave_the_shift_and_turn_weak():
     lam_wall = np.linalg.eigvalsh(_points_information(wall, ones, d, cam, 400.0))[0]
     lam_spread = np.linalg.eigvalsh(_points_information(spread, ones, d, cam, 400.0))[0]
     assert lam_wall < 0.1 * lam_spread
+
+
+def test_a_poorly_conditioned_loop_waits_for_a_better_one_then_closes():
+    """``max_loop_sigma``: a loop whose pose the matches fix worse than the bound fails verification as
+    "conditioning" (after every other check passed) and is kept; with no better-conditioned loop
+    ``defer_keyframes`` keyframes later it is closed as it is. Here the bound is far below anything a
+    real loop reaches, so every verified loop is poorly conditioned."""
+    cfg = LoopClosingConfig(global_ba=False, background=False, max_loop_sigma=1e-6, defer_keyframes=2)
+    closer, mp, T_gt, _, results = run_loop_scene(400.0, 44, config=cfg)
+    assert len(results) >= 1
+    r = results[0]
+    assert r.checks["deferred"] is True
+    assert 0 < r.checks["loop_sigma_m"] < 0.05  # metres: the scene's loop pose is fixed to millimetres
+    first = min(q for q, _, reason, _ in closer.rejected if reason == "conditioning")
+    assert r.query_kf_id >= first  # the best of the loops kept, closed two keyframes later
+    assert any(q == r.query_kf_id and reason == "conditioning" for q, _, reason, _ in closer.rejected)
+    T_true = relative_pose(T_gt[r.query_kf_id], T_gt[r.loop_kf_id])
+    np.testing.assert_allclose(r.T_query_loop[:3, 3], T_true[:3, 3], atol=0.03)
+    # the bound off: the loop closes at once, at the first keyframe that was kept waiting above
+    closer0, _, _, _, results0 = run_loop_scene(400.0, 44, config=LoopClosingConfig(global_ba=False, background=False,
+                                                                                 max_loop_sigma=0.0))
+    assert results0[0].query_kf_id == first
+    assert "deferred" not in results0[0].checks
+    assert not any(reason == "conditioning" for _, _, reason, _ in closer0.rejected)
+
+
+def test_a_loop_kept_waiting_is_closed_when_the_run_ends():
+    cfg = LoopClosingConfig(global_ba=False, background=False, max_loop_sigma=1e-6, defer_keyframes=1000)
+    closer, mp, _, _, results = run_loop_scene(400.0, 44, config=cfg)
+    assert results == [] and closer.loops == []
+    assert any(reason == "conditioning" for _, _, reason, _ in closer.rejected)
+    assert closer.close_pending(mp)
+    closer.wait(mp)
+    assert len(closer.loops) == 1 and closer.loops[0].applied and closer.loops[0].checks["deferred"]
+    assert not closer.close_pending(mp)  # nothing left waiting

@@ -127,6 +127,9 @@ class LoopCloser:
         self._last_loop_kf = -1
         self._epoch = 0  # accepted loops so far: verifications begun before the last one are dropped
         self._rng = np.random.default_rng(self.config.seed)
+        # a verified loop whose pose the matches fix poorly, waiting for a better one: (query id, candidate id,
+        # check, frozen poses, query ms, verify ms, keyframes waited)
+        self._pending: tuple | None = None
 
     @property
     def last_candidates(self) -> list[LoopCandidate]:
@@ -186,11 +189,43 @@ class LoopCloser:
             self.database.add(keyframe.id, bow)
         if not cfg.background and self.busy:
             self.poll(map)
+        self._age_pending(map)
         t1 = time.perf_counter()
         self.stage_ms.append((int(keyframe.id), 1e3 * (t1 - t0)))
         self.stage_parts_ms.append((int(keyframe.id), 1e3 * (t_bow - t0), 1e3 * (t_detect - t_bow),
                                     1e3 * (t_freeze - t_detect), 1e3 * (time.thread_time() - c0)))
         return self.loops[-1] if len(self.loops) > n_loops else None
+
+    def close_pending(self, mp) -> bool:
+        """Close the loop kept waiting for a better-conditioned one now (the run ends: none will come).
+        True when a correction was started (apply it with :meth:`wait`)."""
+        if self._pending is None or not self.config.enabled:
+            return False
+        self.poll(mp, wait=True)  # verifications still running may bring a better one, or a loop
+        if self._pending is None:
+            return self.busy
+        query_id, cand_id, check, frozen, q_ms, v_ms, _ = self._pending
+        self._pending = None
+        check.accepted = True
+        check.stats["deferred"] = True
+        return self._accept(mp, query_id, cand_id, check, frozen, q_ms, v_ms) is not None
+
+    def _age_pending(self, mp) -> None:
+        """A loop kept for its weak conditioning (``max_loop_sigma``) is closed after ``defer_keyframes``
+        more keyframes brought no better-conditioned one (ours; docs/loop_closing.md "A loop pose the
+        matches determine")."""
+        if self._pending is None or self._correcting:
+            return
+        query_id, cand_id, check, frozen, q_ms, v_ms, age = self._pending
+        if age < self.config.defer_keyframes:
+            self._pending = (query_id, cand_id, check, frozen, q_ms, v_ms, age + 1)
+            return
+        self._pending = None
+        check.accepted = True
+        check.stats["deferred"] = True
+        self._accept(mp, query_id, cand_id, check, frozen, q_ms, v_ms)
+        if not self.config.background and self.busy:
+            self.poll(mp)
 
     @property
     def _correcting(self) -> bool:
@@ -201,13 +236,16 @@ class LoopCloser:
         """Worker: verify the candidates in order on the frozen view; the first accepted wins.
         Returns ``(candidate id or -1, its check, [(candidate, reason, stats) of the rejected],
         (frozen query pose, frozen candidate pose))``."""
-        rejected = []
+        rejected, weak = [], None
         for cand_id in candidates:
             check = verify_candidate(query, view, cand_id, self.config, self.camera, self.bf, self._rng)
+            frozen = (query._T_w_c, view.keyframes[cand_id]._T_w_c)
             if check.accepted:
-                return int(cand_id), check, rejected, (query._T_w_c, view.keyframes[cand_id]._T_w_c)
+                return int(cand_id), check, rejected, frozen, None
             rejected.append((int(cand_id), check.reason, check.stats))
-        return -1, None, rejected, ()
+            if check.reason == "conditioning" and (weak is None or check.stats["loop_sigma_m"] < weak[1].stats["loop_sigma_m"]):
+                weak = (int(cand_id), check, frozen)
+        return -1, None, rejected, (), weak
 
     def _accept(self, mp, query_id: int, cand_id: int, check: CandidateCheck, frozen: tuple, q_ms: float,
                 v_ms: float) -> LoopResult | None:
@@ -258,12 +296,17 @@ class LoopCloser:
             for out, (kind, tag) in done:
                 if kind == "verify":
                     (query, _view, _cands, epoch), q_ms = tag
-                    cand_id, check, rejected, frozen, v_ms = out
+                    cand_id, check, rejected, frozen, weak, v_ms = out
                     self.rejected.extend((int(query.id), c, r, st) for c, r, st in rejected)
                     if epoch != self._epoch:
                         continue
                     if check is not None:
+                        self._pending = None
                         self._accept(map, int(query.id), cand_id, check, frozen, q_ms, v_ms)
+                    elif weak is not None and (self._pending is None or
+                                               weak[1].stats["loop_sigma_m"] < self._pending[2].stats["loop_sigma_m"]):
+                        # a loop that passed every check but the conditioning: kept, in case no better one comes
+                        self._pending = (int(query.id), *weak, q_ms, v_ms, 0)
                     continue
                 result = tag
                 t0 = time.perf_counter()

@@ -37,6 +37,8 @@ class LoopClosingConfig:
     min_depth_spread: float = 0.3  # map matches' depths: 10-90 % range at least this (m): not one flat object (ours)
     neighbour_checks: int = 2  # best covisible neighbours of the query that must agree with the loop pose too (ours)
     min_neighbour_matches: int = 30  # loop-group map points each of those neighbours must match under the corrected pose (ours)
+    max_loop_sigma: float = 0.010  # m: a loop pose must fix the query camera's centre within this standard deviation (its map matches, one pixel of noise: optimize.pose_uncertainty), else it waits for a better-conditioned one; 0 = no test; ours, docs/loop_closing.md "A loop pose the matches determine"
+    defer_keyframes: int = 3  # keyframes a loop that failed only max_loop_sigma waits for a better-conditioned one before it is closed as it is; ours
     drift_abs: float = 0.05  # correction translation allowed without travel (m); ours
     drift_rel: float = 0.1  # ... plus this per metre of odometry path between the two keyframes (ORB-SLAM-class drift: ~1 %); ours
     drift_rot_abs: float = 3.0  # correction rotation allowed without travel (deg); ours
@@ -69,7 +71,8 @@ class LoopClosingConfig:
                 f"inlier_rel={self.inlier_rel}"
             )
         for name in ("refine_rounds", "min_keyframes_between", "loop_group_size", "neighbour_checks",
-                     "min_neighbour_matches", "global_ba_iterations", "global_ba_min_observations", "max_verified"):
+                     "min_neighbour_matches", "global_ba_iterations", "global_ba_min_observations", "max_verified",
+                     "defer_keyframes"):
             if getattr(self, name) < 0:
                 raise ValueError(f"LoopClosingConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 <= self.min_spread <= 1:
@@ -77,5 +80,7 @@ class LoopClosingConfig:
         for name in ("min_depth_spread", "drift_abs", "drift_rel", "drift_rot_abs", "drift_rot_rel"):
             if getattr(self, name) < 0:
                 raise ValueError(f"LoopClosingConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.max_loop_sigma >= 0:
+            raise ValueError(f"LoopClosingConfig.max_loop_sigma must be >= 0 (m; 0 = no test), got {self.max_loop_sigma}")
         if self.loop_edge_weight <= 0:
             raise ValueError(f"LoopClosingConfig.loop_edge_weight must be > 0, got {self.loop_edge_weight}")
