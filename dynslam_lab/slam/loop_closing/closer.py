@@ -235,7 +235,8 @@ class LoopCloser:
     def _verify(self, query, view, candidates: list[int], epoch: int) -> tuple[int, CandidateCheck | None, list, tuple]:
         """Worker: verify the candidates in order on the frozen view; the first accepted wins.
         Returns ``(candidate id or -1, its check, [(candidate, reason, stats) of the rejected],
-        (frozen query pose, frozen candidate pose))``."""
+        (frozen query pose, frozen candidate pose), weak)``; ``weak`` is ``(candidate id, check, frozen
+        poses)`` of the best-conditioned candidate that failed only ``max_loop_sigma`` (None if none)."""
         rejected, weak = [], None
         for cand_id in candidates:
             check = verify_candidate(query, view, cand_id, self.config, self.camera, self.bf, self._rng)
