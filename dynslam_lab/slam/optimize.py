@@ -80,6 +80,7 @@ from ..camera import PinholeCamera
 from ..geometry.se3 import nearest_rotation, skew
 
 __all__ = [
+    "pose_information",
     "pose_uncertainty",
     "CHI2_2DOF",
     "CHI2_3DOF",
@@ -468,12 +469,34 @@ def optimize_pose(
     return T, outlier
 
 
+def pose_information(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
+                     bf: float) -> np.ndarray:
+    """``(6, 6)`` Gauss-Newton information ``H = J^T J`` of one pose under the observations of motion-only
+    BA (eq. 2, no robust kernel, whitened rows: one pixel at level 0), in its step ``(omega, tau)``
+    (``R <- Exp(omega) R``, ``t <- t + tau``); points behind the camera are left out. It does not
+    depend on the measured pixels, only on where the points are and which have depth.
+
+    At ``T_c_w = I`` (points given in the camera) the step moves a point by ``[omega]_x X + tau``, minus
+    the right perturbation ``T_w_c Exp(eps)`` of the camera's pose to first order, so ``H`` is also the
+    information of that perturbation (the pose graph's edge residual, :mod:`.loop_closing.correction`)."""
+    X_w = np.asarray(X_w, float).reshape(-1, 3)
+    if len(X_w) != len(obs):
+        raise ValueError(f"pose_information: {len(X_w)} points but {len(obs)} observations")
+    R, t = np.asarray(T_c_w, float)[:3, :3], np.asarray(T_c_w, float)[:3, 3]
+    terms = _PoseTerms(X_w, obs, camera, bf)
+    RX = terms.X @ R.T
+    X_c = RX + t
+    front = X_c[:, 2] > _MIN_DEPTH
+    J = terms.subset(front).jacobian(X_c[front], RX[front])
+    return J.T @ J
+
+
 def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
                      bf: float) -> tuple[float, float]:
     """How well the observations fix one pose: the largest standard deviation of the camera centre (m)
     and of its orientation (deg) that motion-only BA (eq. 2, no robust kernel) has at ``T_c_w`` if each
     whitened residual has unit variance (one pixel at level 0): the inverse of the Gauss-Newton
-    information ``H = J^T J`` (the Cramer-Rao bound of the least-squares pose).
+    information ``H = J^T J`` (:func:`pose_information`; the Cramer-Rao bound of the least-squares pose).
 
     With the step ``R <- Exp(omega) R``, ``t <- t + tau`` the centre ``c = -R^T t`` moves by
     ``dc = -R^T [t]_x omega - R^T tau`` to first order, so ``Cov(c) = J_c H^-1 J_c^T``; the orientation's is
@@ -484,14 +507,9 @@ def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, came
     if len(X_w) != len(obs):
         raise ValueError(f"pose_uncertainty: {len(X_w)} points but {len(obs)} observations")
     R, t = np.asarray(T_c_w, float)[:3, :3], np.asarray(T_c_w, float)[:3, 3]
-    terms = _PoseTerms(X_w, obs, camera, bf)
-    RX = terms.X @ R.T
-    X_c = RX + t
-    front = X_c[:, 2] > _MIN_DEPTH
-    if front.sum() < 3:
+    if int(((X_w @ R[2]) + t[2] > _MIN_DEPTH).sum()) < 3:
         return float("inf"), float("inf")
-    J = terms.subset(front).jacobian(X_c[front], RX[front])
-    H = J.T @ J
+    H = pose_information(T_c_w, X_w, obs, camera, bf)
     if np.linalg.cond(H) > 1e12:
         return float("inf"), float("inf")
     C = np.linalg.inv(H)

@@ -406,13 +406,22 @@ def test_global_ba_holds_keyframes_with_few_points(min_observations):
     assert corr.stats["gba_held_weak"] == (1 if min_observations == 30 else 0)
 
 
-def test_points_information_matches_opencv_finite_differences():
-    """The pose information of :func:`_points_information` equals ``J^T J`` with ``J`` the finite-difference
-    Jacobian of OpenCV's projection (``cv2.projectPoints``) and of the virtual right pixel, under the right
-    perturbation ``T <- T exp(eps)`` of the camera's pose (``X' = exp(eps)^-1 X``)."""
-    import cv2
+def _information_at_identity(X_c, sigma, has_d, cam, bf):
+    """:func:`pose_information` at the identity for points in the camera, with these pixel sigmas and
+    depths (the measured pixels do not enter it): how the pose graph's edge information is computed."""
+    from dynslam_lab.slam.optimize import Observations, pose_information
 
-    from dynslam_lab.slam.loop_closing.correction import _points_information
+    uv = X_c[:, :2] / X_c[:, 2:] * cam.fx + np.array([cam.cx, cam.cy])
+    obs = Observations(uv, np.where(has_d, uv[:, 0] - bf / X_c[:, 2], np.nan), sigma)
+    return pose_information(np.eye(4), X_c, obs, cam, bf)
+
+
+def test_points_information_matches_opencv_finite_differences():
+    """The pose information the pose graph's edges get (:func:`pose_information` at the identity) equals
+    ``J^T J`` with ``J`` the finite-difference Jacobian of OpenCV's projection (``cv2.projectPoints``) and of
+    the virtual right pixel, under the right perturbation ``T <- T exp(eps)`` of the camera's pose
+    (``X' = exp(eps)^-1 X``)."""
+    import cv2
 
     cam = PinholeCamera(FX, FX, 319.5, 239.5)
     bf = 400.0
@@ -432,14 +441,13 @@ def test_points_information_matches_opencv_finite_differences():
     h = 1e-6
     J = np.stack([(rows(h * np.eye(6)[a]) - rows(-h * np.eye(6)[a])) / (2 * h) for a in range(6)], axis=-1)
     H_ref = np.einsum("kia,kib->ab", J, J)
-    H = _points_information(X, sigma, has_d, cam, bf)
+    H = _information_at_identity(X, sigma, has_d, cam, bf)
     np.testing.assert_allclose(H, H_ref, rtol=1e-5, atol=1e-3 * np.abs(H_ref).max() * 1e-3)
 
 
 def test_points_at_one_depth_leave_the_shift_and_turn_weak():
     """Points on a far fronto-parallel wall determine a sideways shift combined with a turn (x + yaw)
     far worse than points spread in depth: the smallest eigenvalue of the information (rad, m) drops."""
-    from dynslam_lab.slam.loop_closing.correction import _points_information
 
     cam = PinholeCamera(FX, FX, 319.5, 239.5)
     rng = np.random.default_rng(5)
@@ -447,8 +455,8 @@ def test_points_at_one_depth_leave_the_shift_and_turn_weak():
     wall = np.column_stack([xy * 4.4 / 3.0, np.full(150, 4.4)])
     spread = np.column_stack([xy, rng.uniform(0.8, 4.4, 150)])
     ones, d = np.ones(150), np.ones(150, bool)
-    lam_wall = np.linalg.eigvalsh(_points_information(wall, ones, d, cam, 400.0))[0]
-    lam_spread = np.linalg.eigvalsh(_points_information(spread, ones, d, cam, 400.0))[0]
+    lam_wall = np.linalg.eigvalsh(_information_at_identity(wall, ones, d, cam, 400.0))[0]
+    lam_spread = np.linalg.eigvalsh(_information_at_identity(spread, ones, d, cam, 400.0))[0]
     assert lam_wall < 0.1 * lam_spread
 
 

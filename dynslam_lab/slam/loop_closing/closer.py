@@ -204,11 +204,7 @@ class LoopCloser:
         self.poll(mp, wait=True)  # verifications still running may bring a better one, or a loop
         if self._pending is None:
             return self.busy
-        query_id, cand_id, check, frozen, q_ms, v_ms, _ = self._pending
-        self._pending = None
-        check.accepted = True
-        check.stats["deferred"] = True
-        return self._accept(mp, query_id, cand_id, check, frozen, q_ms, v_ms) is not None
+        return self._close_pending_now(mp)
 
     def _age_pending(self, mp) -> None:
         """A loop kept for its weak conditioning (``max_loop_sigma``) is closed after ``defer_keyframes``
@@ -220,12 +216,17 @@ class LoopCloser:
         if age < self.config.defer_keyframes:
             self._pending = (query_id, cand_id, check, frozen, q_ms, v_ms, age + 1)
             return
+        self._close_pending_now(mp)
+        if not self.config.background and self.busy:
+            self.poll(mp)
+
+    def _close_pending_now(self, mp) -> bool:
+        """Accept the kept loop as it is (marked ``deferred``); True when its correction was started."""
+        query_id, cand_id, check, frozen, q_ms, v_ms, _ = self._pending
         self._pending = None
         check.accepted = True
         check.stats["deferred"] = True
-        self._accept(mp, query_id, cand_id, check, frozen, q_ms, v_ms)
-        if not self.config.background and self.busy:
-            self.poll(mp)
+        return self._accept(mp, query_id, cand_id, check, frozen, q_ms, v_ms) is not None
 
     @property
     def _correcting(self) -> bool:

@@ -36,9 +36,9 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ...camera import PinholeCamera
-from ...geometry.se3 import se3_inv, skew, transform_points
+from ...geometry.se3 import se3_inv, transform_points
 from ..local_mapping import gather_observations, replace_points
-from ..optimize import local_bundle_adjustment
+from ..optimize import Observations, local_bundle_adjustment, pose_information
 from ..pose_graph import optimize_pose_graph
 from .config import LoopClosingConfig
 from .verification import match_points_3d
@@ -174,39 +174,14 @@ def essential_graph(snap: Snapshot, T_init: np.ndarray, current_group: list[int]
     return np.asarray(edges, np.int64), np.stack(Z), np.asarray(w, float)
 
 
-def _points_information(X_c: np.ndarray, uv_sigma: np.ndarray, has_depth: np.ndarray, camera: PinholeCamera,
-                        bf: float) -> np.ndarray:
-    """``(6, 6)`` information of a camera's pose, as the right perturbation ``(omega, tau)`` of its pose
-    relative to the frame the points ``X_c (K, 3)`` (in the camera) are fixed in, from their pixels
-    (sigma ``uv_sigma (K,)``) and, where ``has_depth``, their virtual right pixels ``u - bf / z``: with
-    ``X' = X + [X]_x omega - tau``, ``H = sum J^T J``, ``J`` the whitened Jacobian of the ``(u, v, u_R)``
-    rows (those of motion-only BA, :func:`~dynslam_lab.slam.optimize.optimize_pose`)."""
-    z = X_c[:, 2]
-    ok = z > 1e-6
-    X, s, d = X_c[ok], uv_sigma[ok], has_depth[ok]
-    if len(X) == 0:
-        return np.zeros((6, 6))
-    iz = 1.0 / X[:, 2]
-    P = np.zeros((len(X), 3, 3))
-    P[:, 0, 0] = camera.fx * iz
-    P[:, 0, 2] = -camera.fx * X[:, 0] * iz**2
-    P[:, 1, 1] = camera.fy * iz
-    P[:, 1, 2] = -camera.fy * X[:, 1] * iz**2
-    P[:, 2] = P[:, 0]
-    P[:, 2, 2] += bf * iz**2
-    P[:, 2] *= d[:, None]
-    D = np.concatenate([skew(X), np.broadcast_to(-np.eye(3), (len(X), 3, 3))], axis=2)
-    J = (P @ D) / s[:, None, None]
-    return np.einsum("kia,kib->ab", J, J)
-
-
 def edge_information(snap: Snapshot, edges: np.ndarray, loop_edge: int | None, loop_obs: tuple | None,
                      T_init: np.ndarray, camera: PinholeCamera, bf: float, config: LoopClosingConfig) -> np.ndarray:
     """``(E, 6, 6)`` information of each essential-graph edge ``(i, j)`` (ours; ORB-SLAM2 uses the identity).
 
     An odometry edge (spanning tree, covisibility, an earlier loop) is measured from the map points its two
     keyframes share: their observations in the keyframe ``j`` with the points held where they are
-    (:func:`_points_information`, in ``j``'s frame, which is where the edge's residual lives). The new
+    (:func:`~dynslam_lab.slam.optimize.pose_information` at the identity with the points in ``j``'s
+    frame, which is where the edge's residual lives). The new
     loop edge (index ``loop_edge``, query last) is measured by the loop's map matches in the query,
     ``loop_obs = (query keyframe, keypoint indices, point rows)``, at the corrected pose. Each gets
     ``pose_graph.floor_*`` added (a prior of a degree and two centimetres: what a keyframe tracked by
@@ -227,8 +202,8 @@ def edge_information(snap: Snapshot, edges: np.ndarray, loop_edge: int | None, l
 
     def info(kf, kp: np.ndarray, rows_xyz: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
         X = transform_points(se3_inv(T_w_c), snap.xyz[rows_xyz])
-        return _points_information(X, snap.scale_factor ** np.asarray(kf.octave)[kp].astype(float),
-                                   np.isfinite(kf.points_c[kp, 2]) & (kf.points_c[kp, 2] > 0), camera, bf)
+        obs = Observations.from_keypoints(kf.uv[kp], kf.points_c[kp, 2], np.asarray(kf.octave)[kp], bf, snap.scale_factor)
+        return pose_information(np.eye(4), X, obs, camera, bf)
 
     for e, (i, j) in enumerate(np.asarray(edges).tolist()):
         if e == loop_edge:
