@@ -912,14 +912,19 @@ class Tracker:
     def need_keyframe(self, frame: SlamFrame) -> bool:
         """ORB-SLAM2 ``NeedNewKeyFrame`` for RGB-D with local mapping always idle, with our guards for
         graceful failure: no keyframe on a :attr:`suspect` pose, and during a bad stretch
-        (:meth:`in_bad_stretch`) at least ``flood_min_gap`` frames between keyframes."""
+        (:meth:`in_bad_stretch`) at least ``flood_min_gap`` frames between keyframes, unless the frame was
+        tracked by depth alone with almost no map point (fewer than 5, the keyframe asked for by its many new
+        close keypoints: a plain wall giving way to an unmapped part of the room; a mover is tracked by its
+        features, not there): without that keyframe the next frame has no map to track. Ours."""
         need = self._need_keyframe(frame)
         if need:
             self.kf_demand_frames = [f for f in self.kf_demand_frames if frame.index - f < self.cfg.flood_window]
             self.kf_demand_frames.append(frame.index)
             if self.suspect:
                 return False
-            if self.in_bad_stretch(frame.index) and frame.index - self.last_kf_frame < self.cfg.flood_min_gap:
+            mapless = self.method == "dense" and self.n_inliers < _DENSE_KF_MIN_INLIERS
+            if (self.in_bad_stretch(frame.index) and frame.index - self.last_kf_frame < self.cfg.flood_min_gap
+                    and not mapless):
                 return False
         return need
 

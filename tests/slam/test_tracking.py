@@ -418,3 +418,27 @@ def test_dense_keyframe_reference_does_not_inherit_the_last_frames_error(referen
     else:
         assert sys_.tracker.dense_model_sources >= 2
         assert err < 0.005, err
+
+
+@pytest.mark.parametrize("method, inliers, expected", [("dense", 0, True), ("dense", 8, False), ("dense", 20, False),
+                                                       ("motion_model", 20, False)])
+def test_bad_stretch_gap_yields_to_a_frame_with_no_map_under_it(method, inliers, expected):
+    """During a bad stretch (``flood_keyframes`` keyframe demands within ``flood_window`` frames) keyframes
+    keep ``flood_min_gap`` frames apart, except for a frame tracked by depth alone with almost no map point
+    (fewer than 5) that sees many new close keypoints (a plain wall giving way to an unmapped shelf): without
+    that keyframe the next frame has no map to track and is lost (``loop_flat`` seed 6 lost 31 frames so).
+    Dense-tracked frames with a few more map points keep the gap (letting them through too made
+    ``loop_flat`` seeds 4, 5, 7 worse by 6-40 mm)."""
+    frames = scene.frames(2, "xyz")
+    sys_ = System(CAM, Config())
+    sys_.process(frames[0])
+    tr = sys_.tracker
+    sf = make_slam_frame(dataclasses.replace(frames[1], index=10), extract_features(frames[1].gray))
+    sf.T_w_c = frames[1].T_w_c_gt
+    sf.map_point_ids[:] = -1  # nothing matched: every close keypoint is new
+    sf.map_point_ids[:inliers] = tr.ref_kf.map_point_ids[tr.ref_kf.map_point_ids >= 0][:inliers]
+    tr.method, tr.n_inliers = method, inliers
+    tr.last_kf_frame, tr.kf_demand_frames = 8, [7, 8]
+    assert tr._need_keyframe(sf)  # ORB-SLAM2's rule asks for one in each case
+    assert tr.need_keyframe(sf) == expected
+    assert tr.in_bad_stretch(10)
