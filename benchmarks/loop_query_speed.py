@@ -195,7 +195,7 @@ def stage_in_run(n_keyframes: int, background: bool = True, correction: bool = T
         _verification_stats(closer)
     if correction:
         with blas_single_thread():
-            time_correction(mp, made_from, cfg)
+            time_correction(mp, made_from, cfg, seq.camera, Config().tracking.bf)
 
 
 def _stage_table(rows: list[tuple], n_keyframes: int, background: bool) -> None:
@@ -226,7 +226,7 @@ def _verification_stats(closer) -> None:
         print(f"loop {r.query_kf_id}->{r.loop_kf_id}: " + " ".join(f"{k} {v:.1f} ms" for k, v in r.timings_ms.items()))
 
 
-def time_correction(mp, made_from: dict[int, tuple[int, int]], cfg) -> None:
+def time_correction(mp, made_from: dict[int, tuple[int, int]], cfg, camera, bf: float) -> None:
     """Close the last keyframe with its first copy's twin and time each part of the correction."""
     from dynslam_lab.geometry.se3 import se3_inv
     from dynslam_lab.slam.loop_closing.correction import Correction, apply_correction, run_loop_correction, take_snapshot
@@ -248,7 +248,8 @@ def time_correction(mp, made_from: dict[int, tuple[int, int]], cfg) -> None:
     snap = take_snapshot(mp)
     t["snapshot (frame loop)"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    corr = run_loop_correction(snap, query, loop, C, current_group, loop_group, l.map_point_ids[both], both, cfg)
+    corr = run_loop_correction(snap, query, loop, C, current_group, loop_group, l.map_point_ids[both], both, cfg,
+                               camera, bf)
     t["pose graph + fusion search (worker)"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     apply_correction(mp, corr)

@@ -343,8 +343,8 @@ print(f"ATE before {ate(before) * 100:.1f} cm, after {ate(after) * 100:.1f} cm")
 # Every edge above counts the same (ORB-SLAM2's identity information). A real edge is pinned better in
 # some directions than in others: a loop matched only on a far wall cannot tell a sideways shift from
 # a turn. `optimize_pose_graph(..., information=...)` takes a 6 x 6 information matrix per edge
-# (rotation in rad, translation in m; `pose_graph.information = "points"` computes them from the shared
-# map points in a run, docs/loop_closing.md section 4). Three poses on a line, two short edges and one
+# (rotation in rad, translation in m; in a run, `pose_graph.information = "points"`, the default,
+# computes them from the shared map points, docs/loop_closing.md section 4; `"identity"` is ORB-SLAM2's). Three poses on a line, two short edges and one
 # long edge that says 2.1 m instead of 2.0: with the identity the 10 cm are shared, with the second
 # edge weak along x (information 1 against 10^6) that edge takes all of it.
 

@@ -63,7 +63,7 @@ class PoseGraphConfig:
     rotation_weight: float = 3.0  # m: the rotation residual (rad) times this, so that it counts as the displacement of a point this far
     # away (a room 2-4 m deep; translation residuals in m); ours, ORB-SLAM2 uses identity (1); docs/loop_closing.md "Where the
     # correction puts a plain room's drift": 3 lowered `loop_flat`'s worst ATE 29.4 -> 24.6 mm, other rooms unchanged
-    information: str = "identity"  # each edge's information matrix: "identity" (ORB-SLAM2; rotation counted rotation_weight times), "points" (from the map points the edge's keyframes share, the loop's from its matches; loop_closing.correction.edge_information); ours
+    information: str = "points"  # each edge's information matrix: "points" (from the map points the edge's keyframes share, the loop's from its matches; loop_closing.correction.edge_information; ours, docs/loop_closing.md "Information per edge") or "identity" (ORB-SLAM2; rotation counted rotation_weight times)
     floor_rotation_deg: float = 1.0  # "points": a prior of this rotation sigma added to every edge (an edge with no shared point, tracked by depth); ours, as tracking.dense_prior_rotation_deg
     floor_translation: float = 0.02  # m, the same for the translation; ours, as tracking.dense_prior_translation
     loss: str = "linear"  # robust loss on an edge's squared residual (scipy's names); ORB-SLAM2 uses none here (a robust loss would mute the loop edge)

@@ -13,7 +13,9 @@ written back and the keyframes made since are moved along the spanning tree. Our
    points are searched in those keyframes (3D, as :func:`.verification.match_points_3d`); the
    essential graph (new loop links, spanning tree, covisibility edges with ``>= 100`` shared points,
    earlier loops) is optimised in SE(3) with the loop keyframe fixed
-   (:func:`~dynslam_lab.slam.pose_graph.optimize_pose_graph`; :func:`essential_graph`).
+   (:func:`~dynslam_lab.slam.pose_graph.optimize_pose_graph`; :func:`essential_graph`), each edge
+   weighted by the information of the map points its keyframes share (:func:`edge_information`, the
+   default ``pose_graph.information = "points"``; ORB-SLAM2's identity with ``"identity"``).
 3. **Apply** (frame loop, between two frames, :func:`apply_correction`): each keyframe of the
    snapshot gets its correction ``D_k = T_k^new (T_k^old)^-1`` applied to its *current* pose (what
    local BA did since is kept); keyframes made since the snapshot take the correction of their
