@@ -470,11 +470,12 @@ def optimize_pose(
 
 
 def pose_information(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,
-                     bf: float) -> np.ndarray:
+                     bf: float, per_observation: bool = False) -> np.ndarray:
     """``(6, 6)`` Gauss-Newton information ``H = J^T J`` of one pose under the observations of motion-only
     BA (eq. 2, no robust kernel, whitened rows: one pixel at level 0), in its step ``(omega, tau)``
     (``R <- Exp(omega) R``, ``t <- t + tau``); points behind the camera are left out. It does not
-    depend on the measured pixels, only on where the points are and which have depth.
+    depend on the measured pixels, only on where the points are and which have depth. With
+    ``per_observation``, ``(K, 6, 6)``: each observation's share (zero behind the camera), summing to ``H``.
 
     At ``T_c_w = I`` (points given in the camera) the step moves a point by ``[omega]_x X + tau``, minus
     the right perturbation ``T_w_c Exp(eps)`` of the camera's pose to first order, so ``H`` is also the
@@ -488,7 +489,12 @@ def pose_information(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, came
     X_c = RX + t
     front = X_c[:, 2] > _MIN_DEPTH
     J = terms.subset(front).jacobian(X_c[front], RX[front])
-    return J.T @ J
+    if not per_observation:
+        return J.T @ J
+    out = np.zeros((len(X_w), 6, 6))
+    Jk = J.reshape(-1, 3, 6)
+    out[front] = np.einsum("kia,kib->kab", Jk, Jk)
+    return out
 
 
 def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, camera: PinholeCamera,

@@ -465,6 +465,47 @@ def test_points_at_one_depth_leave_the_shift_and_turn_weak():
     assert lam_wall < 0.1 * lam_spread
 
 
+def test_edge_information_sums_the_shared_points_seen_from_the_later_keyframe():
+    """Each essential-graph edge ``(i, j)``'s information (``edge_information``) equals, against an independent
+    finite-difference reference, the floor plus ``J^T J`` over the map points keyframes ``i`` and ``j`` both
+    observe, ``J`` OpenCV's projection (and the virtual right pixel where the keypoint has depth) in keyframe
+    ``j`` under the right perturbation of ``j``'s pose, whitened by the keypoint's pyramid sigma."""
+    import cv2
+
+    from dynslam_lab.slam.loop_closing.correction import edge_information, essential_graph
+
+    cfg = LoopClosingConfig(global_ba=False, background=False)
+    _, mp, _, _, _ = run_loop_scene(120.0, 10, config=cfg, per_kf=300)
+    snap = take_snapshot(mp)
+    edges, _, _ = essential_graph(snap, snap.T_w_c, [], [], cfg)
+    assert len(edges) >= 9
+    info = edge_information(snap, edges, None, None, snap.T_w_c, CAM, BF, cfg)
+    K = np.array([[FX, 0, CX], [0, FY, CY], [0, 0, 1]])
+    pg = cfg.pose_graph
+    floor = np.diag([np.radians(pg.floor_rotation_deg) ** -2] * 3 + [pg.floor_translation ** -2] * 3)
+    n_shared = []
+    for e in range(0, len(edges), max(1, len(edges) // 6)):
+        i, j = (int(snap.ids[x]) for x in edges[e])
+        kf_i, kf_j = mp.keyframes[i], mp.keyframes[j]
+        shared = np.intersect1d(kf_i.map_point_ids[kf_i.map_point_ids >= 0], kf_j.map_point_ids[kf_j.map_point_ids >= 0])
+        kp = np.array([int(np.flatnonzero(kf_j.map_point_ids == p)[0]) for p in shared.tolist()], np.int64)
+        X = transform_points(se3_inv(kf_j.T_w_c), mp.xyz[shared])
+        sigma = mp.scale_factor ** np.asarray(kf_j.octave)[kp].astype(float)
+        has_d = kf_j.points_c[kp, 2] > 0
+
+        def rows(eps, X=X, sigma=sigma, has_d=has_d):
+            Xp = transform_points(se3_inv(make_pose(so3_exp(eps[:3]), eps[3:])), X)
+            uv = cv2.projectPoints(Xp.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, None)[0].reshape(-1, 2)
+            return np.column_stack([uv, np.where(has_d, uv[:, 0] - BF / Xp[:, 2], 0.0)]) / sigma[:, None]
+
+        h = 1e-6
+        J = np.stack([(rows(h * np.eye(6)[a]) - rows(-h * np.eye(6)[a])) / (2 * h) for a in range(6)], axis=-1)
+        H_ref = floor + np.einsum("kia,kib->ab", J, J)
+        np.testing.assert_allclose(info[e], H_ref, rtol=1e-5, atol=1e-6 * np.abs(H_ref).max())
+        n_shared.append(len(shared))
+    assert max(n_shared) > 50  # edges with many shared points were checked, not only the floor
+
+
 def test_a_poorly_conditioned_loop_waits_for_a_better_one_then_closes():
     """``max_loop_sigma``: a loop whose pose the matches fix worse than the bound fails verification as
     "conditioning" (after every other check passed) and is kept; with no better-conditioned loop

@@ -195,29 +195,40 @@ def edge_information(snap: Snapshot, edges: np.ndarray, loop_edge: int | None, l
     pg = config.pose_graph
     floor = np.diag([np.radians(pg.floor_rotation_deg) ** -2] * 3 + [pg.floor_translation ** -2] * 3)
     out = np.tile(floor, (len(edges), 1, 1))
-    alive = np.isin(snap.obs_kf, snap.ids)
-    o_kf, o_pt, o_kp = snap.obs_kf[alive], snap.obs_pt[alive], snap.obs_kp[alive]
-    order = np.lexsort((o_pt, o_kf))  # by keyframe, then point
-    starts = np.searchsorted(o_kf[order], snap.ids)
-    ends = np.searchsorted(o_kf[order], snap.ids, side="right")
-    per_kf = [(o_pt[order[a:b]], o_kp[order[a:b]]) for a, b in zip(starts.tolist(), ends.tolist())]
 
-    def info(kf, kp: np.ndarray, rows_xyz: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
-        X = transform_points(se3_inv(T_w_c), snap.xyz[rows_xyz])
-        obs = Observations.from_keypoints(kf.uv[kp], kf.points_c[kp, 2], np.asarray(kf.octave)[kp], bf, snap.scale_factor)
-        return pose_information(np.eye(4), X, obs, camera, bf)
+    def info(kf_rows: np.ndarray, kfs: list, kp: np.ndarray, rows_xyz: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
+        """``(K, 6, 6)``: each observation's information, keypoint ``kp`` of keyframe ``kfs[kf_rows]`` at
+        pose ``T_w_c[kf_rows]``, its point (row ``rows_xyz``) held in that keyframe's frame."""
+        T_c_w = se3_inv(T_w_c)
+        X = np.einsum("kij,kj->ki", T_c_w[kf_rows, :3, :3], snap.xyz[rows_xyz]) + T_c_w[kf_rows, :3, 3]
+        uv, z, octave = np.zeros((len(kp), 2)), np.zeros(len(kp)), np.zeros(len(kp), np.int64)
+        for r in np.unique(kf_rows).tolist():
+            sel = kf_rows == r
+            kf = kfs[r]
+            uv[sel], z[sel], octave[sel] = kf.uv[kp[sel]], kf.points_c[kp[sel], 2], np.asarray(kf.octave)[kp[sel]]
+        obs = Observations.from_keypoints(uv, z, octave, bf, snap.scale_factor)
+        return pose_information(np.eye(4), X, obs, camera, bf, per_observation=True)
+
+    # every observation's share once (in its own keyframe's frame), by keyframe row then point
+    alive = np.isin(snap.obs_kf, snap.ids)
+    o_row = np.searchsorted(snap.ids, snap.obs_kf[alive])
+    o_pt, o_kp = snap.obs_pt[alive], snap.obs_kp[alive]
+    order = np.lexsort((o_pt, o_row))
+    o_row, o_pt, o_kp = o_row[order], o_pt[order], o_kp[order]
+    kfs = [snap.keyframes[int(k)] for k in snap.ids.tolist()]
+    M = info(o_row, kfs, o_kp, np.searchsorted(snap.points, o_pt), snap.T_w_c)
+    starts = np.searchsorted(o_row, np.arange(len(snap.ids)))
+    ends = np.searchsorted(o_row, np.arange(len(snap.ids)), side="right")
 
     for e, (i, j) in enumerate(np.asarray(edges).tolist()):
         if e == loop_edge:
             if loop_obs is not None:
                 kf, kp, prow = loop_obs
-                out[e] += info(kf, kp, prow, T_init[j])
+                out[e] += info(np.zeros(len(kp), np.int64), [kf], np.asarray(kp, np.int64), prow, T_init[j][None]).sum(0)
             continue
-        pi, _ = per_kf[i]
-        pj, kj = per_kf[j]
-        _, _, bj = np.intersect1d(pi, pj, assume_unique=True, return_indices=True)
-        if len(bj):
-            out[e] += info(snap.keyframes[int(snap.ids[j])], kj[bj], np.searchsorted(snap.points, pj[bj]), snap.T_w_c[j])
+        # the points keyframes i and j share, observed in j
+        shared = np.isin(o_pt[starts[j]:ends[j]], o_pt[starts[i]:ends[i]], assume_unique=True)
+        out[e] += M[starts[j]:ends[j]][shared].sum(0)
     return out
 
 
