@@ -88,9 +88,10 @@ class KernelSession:
     """
 
     def __init__(self, cwd: str | Path, env: dict | None = None, kernel_name: str = "python3",
-                 poll_seconds: float = 0.25, startup_timeout: float = 120.0):
+                 poll_seconds: float = 0.25, startup_timeout: float = 120.0, abort_retries: int = 3):
         self.cwd = str(cwd)
         self.poll_seconds = float(poll_seconds)
+        self.abort_retries = int(abort_retries)
         self.kernel_name = kernel_name
         self.startup_timeout = startup_timeout
         base = dict(os.environ if env is None else env)
@@ -119,11 +120,28 @@ class KernelSession:
         """Execute ``code``; collect outputs until the kernel is idle and has replied.
 
         Every wait is a poll of at most ``poll_seconds``; past ``timeout`` seconds the kernel
-        is interrupted and :class:`CellTimeout` raised.
+        is interrupted and :class:`CellTimeout` raised. A request the kernel aborted unexecuted
+        (status ``aborted``: right after an error or an interrupt, ipykernel discards the requests
+        that reach it before it stops aborting, a race under load) is sent again, at most
+        ``abort_retries`` times; then :class:`CellError`.
         """
-        kc, km = self.kc, self.km
         t0 = time.monotonic()
-        deadline = t0 + float(timeout)
+        for _ in range(self.abort_retries + 1):
+            result, content = self._execute(code, t0 + float(timeout), float(timeout), label)
+            if content.get("status") != "aborted":
+                break
+            time.sleep(self.poll_seconds)
+        else:
+            raise CellError(f"{label}: the kernel aborted the request {self.abort_retries + 1} times\n{code[:300]}")
+        result.seconds = time.monotonic() - t0
+        if content.get("status") == "error":
+            tb = _ANSI.sub("", "\n".join(content.get("traceback", [])))
+            raise CellError(f"{label} raised {content.get('ename')}: {content.get('evalue')}\n{tb}")
+        return result
+
+    def _execute(self, code: str, deadline: float, timeout: float, label: str) -> tuple[CellRun, dict]:
+        """One execute request: its outputs and its reply's content (:meth:`run`; ``timeout`` for the message)."""
+        kc, km = self.kc, self.km
         msg_id = kc.execute(code, store_history=True, allow_stdin=False, stop_on_error=True)
         result = CellRun()
         display_index: dict[str, list[int]] = {}
@@ -149,12 +167,7 @@ class KernelSession:
                     m = None
                 if m is not None and m["parent_header"].get("msg_id") == msg_id:
                     reply = m
-        result.seconds = time.monotonic() - t0
-        content = reply["content"]
-        if content.get("status") == "error":
-            tb = _ANSI.sub("", "\n".join(content.get("traceback", [])))
-            raise CellError(f"{label} raised {content.get('ename')}: {content.get('evalue')}\n{tb}")
-        return result
+        return result, reply["content"]
 
     def _drain(self, msg_id: str, replied: bool, seconds: float) -> None:
         """After an interrupt: wait (at most ``seconds``) for the interrupted request's reply."""

@@ -82,6 +82,54 @@ def test_errors_and_timeouts_name_the_cell(tmp_path):
         assert k.run("print('alive')", 30).stdout == "alive\n", "the kernel was interrupted, not killed"
 
 
+class _AbortingKernel:
+    """A stand-in for a kernel client whose first ``aborts`` execute requests are aborted unexecuted
+    (ipykernel's reply ``status: aborted``, no output), as after an error when a request wins the race
+    against the kernel's "stop aborting" message; later requests print ``alive``."""
+
+    def __init__(self, aborts: int):
+        from queue import Queue
+
+        self.aborts, self.sent = aborts, []
+        self.iopub, self.shell = Queue(), Queue()
+
+    def execute(self, code, **kwargs):
+        msg_id = f"m{len(self.sent)}"
+        self.sent.append(code)
+        parent = {"msg_id": msg_id}
+        aborted = len(self.sent) <= self.aborts
+        if not aborted:
+            self.iopub.put({"msg_type": "stream", "parent_header": parent, "header": {"msg_type": "stream"},
+                            "content": {"name": "stdout", "text": "alive\n"}})
+        self.iopub.put({"msg_type": "status", "parent_header": parent, "content": {"execution_state": "idle"}})
+        self.shell.put({"parent_header": parent, "content": {"status": "aborted" if aborted else "ok"}})
+        return msg_id
+
+    def get_iopub_msg(self, timeout=None):
+        return self.iopub.get(timeout=timeout)
+
+    def get_shell_msg(self, timeout=None):
+        return self.shell.get(timeout=timeout or 0.01)
+
+    def is_alive(self):
+        return True
+
+
+@pytest.mark.parametrize("aborts", [0, 2, 4])
+def test_a_request_the_kernel_aborted_is_sent_again(tmp_path, aborts):
+    """An aborted reply is no result: the cell is sent again (``abort_retries`` = 3 times at most), and a
+    request aborted every time is an error, never an empty output taken for the cell's."""
+    k = KernelSession(tmp_path, poll_seconds=0.01)
+    k.kc = k.km = _AbortingKernel(aborts)
+    if aborts <= k.abort_retries:
+        assert k.run("print('alive')", 5).stdout == "alive\n"
+        assert len(k.kc.sent) == aborts + 1
+    else:
+        with pytest.raises(CellError, match="aborted the request 4 times"):
+            k.run("print('alive')", 5)
+    k.kc = k.km = None
+
+
 def test_solutions_replace_exercises(nb_path):
     nb = jupytext.read(nb_path)
     sol = jupytext.reads('# %% exercise="1"\nanswer = 42\n', "py:percent")
