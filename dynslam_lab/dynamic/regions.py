@@ -14,8 +14,10 @@ evidence over the depth image on the reduced grid of the dense tests (our constr
   by less than ``continuity_rel`` of the depth (a depth edge stops it), and never into a cell
   that the multi-frame test confirms static (no earlier frame saw through it or lost it, at least
   ``static_min_agree`` agree, and no more saw it hidden than agree), unless the cell carries the
-  temporal prior (the previous frame's region, :mod:`.temporal`): a slow mover whose cells look
-  static in this frame stays dynamic while some fresh evidence on it remains;
+  temporal prior (the previous frame's region, :mod:`.temporal`) and lies on a surface
+  (:func:`surface_segments`) that holds fresh evidence in this frame: a slow mover whose cells look
+  static in this frame stays dynamic while some fresh evidence on it remains, and a region that
+  spilled onto the wall or floor beside a mover does not keep itself alive there through the prior;
 * **support**: a part of the grown region, joined across continuous depth only, is kept when it
   holds at least ``min_fresh_cells`` cells of fresh evidence, so a lone noisy cell grows nothing and
   the prior fades as soon as the fresh evidence does (a mover that stopped).
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "cells_at", "splat"]
+__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "prior_on_fresh_surfaces", "cells_at", "splat"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,7 @@ class RegionConfig:
     static_min_agree: int = 2  # a cell is confirmed static when this many earlier frames (and all tested) agree; ours
     min_fresh_cells: int = 3  # a region needs this many cells of fresh evidence; ours
     seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
+    prior_on_fresh_surfaces: bool = True  # the prior reopens confirmed-static cells only on surfaces holding min_fresh_cells of fresh evidence; ours
     crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
 
     def __post_init__(self) -> None:
@@ -162,6 +165,24 @@ def supported_regions(region: np.ndarray, fresh: np.ndarray, min_fresh: int,
     keep = support >= min_fresh
     keep[0] = False
     return keep[labels]
+
+
+def prior_on_fresh_surfaces(prior: np.ndarray, fresh: np.ndarray, labels: np.ndarray, min_fresh: int) -> np.ndarray:
+    """The cells of ``prior (h, w)`` on a surface (``labels``, :func:`surface_segments`; 0 = none) that holds
+    at least ``min_fresh`` cells of ``fresh`` evidence in this frame (ours).
+
+    The temporal prior may reopen cells the multi-frame test confirms static (a slow mover's body looks
+    static: the earlier frames saw the mover there too); only on such surfaces, so that a region that
+    grew past a mover's outline onto the floor or wall beside it (continuous depth through the contact)
+    is not carried from frame to frame by its own prior.
+    """
+    prior = np.asarray(prior, bool)
+    labels = np.asarray(labels)
+    if not prior.any():
+        return prior
+    held = np.bincount(labels[np.asarray(fresh, bool)], minlength=int(labels.max()) + 1) >= min_fresh
+    held[0] = False
+    return prior & held[labels]
 
 
 def cells_at(uv: np.ndarray, factor: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

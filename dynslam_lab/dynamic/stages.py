@@ -44,7 +44,7 @@ from .motion_probability import restore_by_motion_probability
 from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
-from .regions import cells_at, depth_continuity, grow_regions, splat, supported_regions, surface_segments
+from .regions import cells_at, depth_continuity, grow_regions, prior_on_fresh_surfaces, splat, supported_regions, surface_segments
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
 from .temporal import MovingMapPoints, warp_region
@@ -648,15 +648,17 @@ def regions_stage(w: FrameWork) -> None:
         fresh |= splat(w.uv, kp, factor, shape)
     prior = w.prior_cells if w.prior_cells is not None else np.zeros(shape, bool)
     vanished = w.vanished_cells if w.vanished_cells is not None else np.zeros(shape, bool)
-    # a mover carried by the prior whose earlier surface this frame sees through (it recedes) stays supported
-    support = fresh | (vanished & prior & False)
     allowed = small > 0
     if w.static_cells is not None:
-        allowed &= ~w.static_cells | prior
+        reopen = prior
+        if cfg.prior_on_fresh_surfaces and prior.any():
+            w.surfaces()  # computes the grid's surface labels once a frame (cached)
+            reopen = prior_on_fresh_surfaces(prior, fresh, w._cache["surface_labels"], cfg.min_fresh_cells)
+        allowed &= ~w.static_cells | reopen
     allowed &= ~(vanished & ~prior)  # background a mover has just uncovered
     continuity = depth_continuity(small, cfg.continuity_rel)
-    grown = grow_regions(support, allowed | support, continuity, cfg.steps)
-    region = supported_regions(grown, support, cfg.min_fresh_cells, continuity)
+    grown = grow_regions(fresh, allowed | fresh, continuity, cfg.steps)
+    region = supported_regions(grown, fresh, cfg.min_fresh_cells, continuity)
     w.grid_region = region
     r, c, inside = cells_at(w.uv, factor, shape)
     # a keypoint takes its cell's verdict when it lies on the cell's surface (a keypoint on the wall

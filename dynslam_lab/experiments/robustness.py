@@ -135,16 +135,18 @@ def _finite(v) -> float:
 
 
 def run_one(seq: TumSequence, run_dir: str | Path, config: Config, filters: str, detector: str = "none",
-            loop_closing: bool = True, max_frames: int | None = None, progress: bool = False) -> dict:
+            loop_closing: bool = True, max_frames: int | None = None, progress: bool = False,
+            scorer: KeypointScorer | None = None) -> dict:
     """One SLAM run, scored: ATE, lost frames, loops, keypoint precision/recall, ms per frame.
 
     Returns a dict with ``ate_rmse_m, tracked, lost, frames, keyframes, loops, precision, recall,
     precision_at_rest_ok, tp, fp, fn, ms_per_frame, screen_ms, run_dir`` (nan where not measured: no
     ground truth, no truth masks, no screening); ``precision_at_rest_ok`` counts keeping a mover at rest
-    out as right (:mod:`.scoring`).
+    out as right (:mod:`.scoring`). Pass a fresh ``scorer`` to read more of the scores afterwards (its
+    split of the false positives, per frame).
     """
     system = build_pipeline(config, seq.camera, detector=detector, filters=filters, loop_closing=loop_closing)
-    scorer = KeypointScorer()
+    scorer = KeypointScorer() if scorer is None else scorer
     summary = run_sequence(seq, run_dir, system, max_frames=max_frames, progress=progress, on_frame=scorer)
     ate = (summary.get("ate") or {}).get("rmse")
     screen = np.asarray(scorer.screen_ms, float)

@@ -25,6 +25,11 @@ false positives on instances that move in some frame of the run (``fp_at_rest``)
 ``precision_at_rest_ok = (TP + FP_at_rest) / (TP + FP)``: the precision when keeping a mover at rest
 out is counted as right. Only false positives on things that never move lower it. The strict
 ``precision`` stays the headline number.
+
+**Where the other false positives lie.** ``fp_by_kind`` splits the false positives by the distance (px)
+from the nearest instance moving in that frame (``FP_DISTANCE_EDGES_PX``: the outline within 4 px, where a
+corner on an occluding contour moves with the mover though its pixel centre is on the background; 4-12 px;
+12-40 px; farther, where a whole static region was judged moving), after those on movers at rest.
 """
 
 from __future__ import annotations
@@ -32,12 +37,18 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..dynamic.oracle import truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
 
-__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer"]
+__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "FP_DISTANCE_EDGES_PX", "FP_KINDS"]
+
+#: Bin edges (px) of a false positive's distance from the nearest moving instance (``KeypointScorer.fp_by_kind``).
+FP_DISTANCE_EDGES_PX = (4.0, 12.0, 40.0)
+#: The kinds of ``KeypointScorer.fp_by_kind``, in order: movers at rest, then the distance bins.
+FP_KINDS = ("at rest", "< 4 px", "4-12 px", "12-40 px", "> 40 px")
 
 
 @dataclass
@@ -130,6 +141,8 @@ class KeypointScorer:
     screen_ms: list[float] = field(default_factory=list)
     fp_by_instance: Counter = field(default_factory=Counter)  # instance id -> false positives on it
     moving_instances: set = field(default_factory=set)  # instances that moved in some frame of the run
+    fp_by_place: Counter = field(default_factory=Counter)  # (instance id, distance bin) -> false positives
+    fp_by_stage: Counter = field(default_factory=Counter)  # stage that flagged them (the table's reason) -> false positives
 
     @property
     def fp_at_rest(self) -> int:
@@ -143,6 +156,15 @@ class KeypointScorer:
         d = self.score.tp + self.score.fp
         return (self.score.tp + self.fp_at_rest) / d if d else float("nan")
 
+    @property
+    def fp_by_kind(self) -> dict[str, int]:
+        """False positives by kind (:data:`FP_KINDS`): on movers at rest, else by the distance bin from the
+        nearest instance moving in their frame (module docstring)."""
+        out = dict.fromkeys(FP_KINDS, 0)
+        for (inst, b), c in self.fp_by_place.items():
+            out[FP_KINDS[0] if inst in self.moving_instances else FP_KINDS[1 + b]] += int(c)
+        return out
+
     def __call__(self, frame, result) -> None:
         self.screen_ms.append(float(result.timings_ms.get("screen", float("nan"))))
         truth = truth_dynamic(frame, result.uv)
@@ -153,5 +175,17 @@ class KeypointScorer:
             self.moving_instances.update(int(i) for i in (frame.moving_ids or ()))
             fp = np.asarray(result.dynamic, bool) & ~truth
             if fp.any():
-                ids = values_at(frame.instance_mask, np.asarray(result.uv)[fp], outside=0)
+                uv_fp = np.asarray(result.uv)[fp]
+                ids = values_at(frame.instance_mask, uv_fp, outside=0)
                 self.fp_by_instance.update(int(i) for i in ids[ids > 0])
+                moving = np.isin(frame.instance_mask, list(frame.moving_ids or ()))
+                if moving.any():
+                    dist = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                    d = values_at(dist, uv_fp, outside=np.inf)
+                else:
+                    d = np.full(len(uv_fp), np.inf)
+                bins = np.searchsorted(np.asarray(FP_DISTANCE_EDGES_PX), d, side="right")
+                self.fp_by_place.update(zip((int(i) for i in ids), (int(b) for b in bins)))
+                table = getattr(result, "table", None)
+                if table is not None:
+                    self.fp_by_stage.update(str(r) for r in np.asarray(table.reason)[fp])

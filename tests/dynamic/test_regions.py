@@ -13,6 +13,7 @@ from dynslam_lab.dynamic.regions import (
     crease_continuity,
     depth_continuity,
     grow_regions,
+    prior_on_fresh_surfaces,
     splat,
     supported_regions,
     surface_segments,
@@ -113,6 +114,38 @@ def test_a_region_needs_fresh_evidence_joined_across_continuous_depth():
     kept = supported_regions(region, fresh, 3, cont)
     assert kept[:, 10:].all() and not kept[:, :10].any()
     assert not supported_regions(region, fresh, 5, cont).any()
+
+
+def test_the_prior_reopens_static_cells_only_on_a_surface_with_fresh_evidence():
+    # a box on the floor; last frame's region covered the box and spilled onto the floor in front of it
+    # (depth is continuous through the contact line); this frame has fresh evidence on the box only, and
+    # the multi-frame test confirms the floor and the box's body static (a slow mover looks static inside)
+    z, face = _box_on_floor()
+    cfg = RegionConfig()
+    _, labels = surface_segments(z, GRID, cfg.continuity_rel, cfg.crease_deg)
+    rows, cols = np.nonzero(face)
+    body = face & (np.arange(face.shape[0])[:, None] < rows.max() - 1)  # the face's lowest rows blur into the floor
+    floor_strip = np.zeros_like(face)
+    floor_strip[rows.max() + 1 : rows.max() + 9, cols.min() : cols.max() + 1] = True
+    assert (z[floor_strip] > 0).all() and not (floor_strip & face).any()
+    prior = face | floor_strip
+    fresh = np.zeros_like(face)
+    fresh[rows.min() : rows.min() + 2, cols.min() : cols.max() + 1] = True  # the box's top edge
+    static = (face & ~fresh) | floor_strip
+    reopened = prior_on_fresh_surfaces(prior, fresh, labels, cfg.min_fresh_cells)
+    assert reopened[body & ~fresh].all()  # the box's body stays open to growth
+    assert not reopened[floor_strip].any()  # the spill on the floor does not
+    cont = depth_continuity(z, cfg.continuity_rel)
+    for reopen, spills in ((prior, True), (reopened, False)):
+        allowed = (z > 0) & (~static | reopen)
+        region = supported_regions(grow_regions(fresh, allowed | fresh, cont, cfg.steps), fresh, cfg.min_fresh_cells, cont)
+        assert region[body].all()  # the whole box either way
+        assert region[floor_strip].any() == spills  # the old rule kept the spill alive
+    # no fresh evidence at all: the prior reopens nothing; fewer than min_fresh_cells on the box: nothing
+    assert not prior_on_fresh_surfaces(prior, np.zeros_like(fresh), labels, 1).any()
+    few = np.zeros_like(fresh)
+    few[rows.min(), cols.min()] = True
+    assert not prior_on_fresh_surfaces(prior, few, labels, 2).any()
 
 
 def test_cells_and_splat_follow_the_reduced_grid():

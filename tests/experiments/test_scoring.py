@@ -40,3 +40,25 @@ def test_an_instance_that_never_moves_stays_a_false_positive():
     assert scorer.fp_at_rest == 0
     assert scorer.precision_at_rest_ok == 0.5
     assert np.isnan(KeypointScorer().precision_at_rest_ok)
+
+
+def test_false_positives_are_split_by_distance_from_the_moving_outline():
+    mask = np.zeros((30, 100), np.int32)
+    mask[:, 0:10] = 1  # a mover, columns 0-9
+    mask[:, 50:56] = 2  # an object that moves only in the second frame
+    uv = np.array([[12.0, 5.0], [18.0, 5.0], [40.0, 5.0], [80.0, 5.0], [52.0, 5.0], [3.0, 5.0]])
+    frame1 = SimpleNamespace(instance_mask=mask, moving_ids={1}, instance_classes={})
+    frame2 = SimpleNamespace(instance_mask=mask, moving_ids={2}, instance_classes={})
+    scorer = KeypointScorer()
+    # frame 1: every keypoint flagged; the last is on the mover (a true positive)
+    scorer(frame1, SimpleNamespace(uv=uv, dynamic=np.ones(6, bool), timings_ms={}))
+    # frame 2: nothing flagged; object 2 moves, so its false positive of frame 1 was a mover at rest
+    scorer(frame2, SimpleNamespace(uv=uv, dynamic=np.zeros(6, bool), timings_ms={}))
+    # by hand: 3, 9, 31 and 71 px from column 9 (the outline); the keypoint on object 2 is at rest
+    assert scorer.fp_by_kind == {"at rest": 1, "< 4 px": 1, "4-12 px": 1, "12-40 px": 1, "> 40 px": 1}
+    assert sum(scorer.fp_by_kind.values()) == scorer.score.fp == 5
+    # no instance moving in a frame: every false positive on a thing that never moves is far from any mover
+    alone = KeypointScorer()
+    alone(SimpleNamespace(instance_mask=mask, moving_ids=set(), instance_classes={}),
+          SimpleNamespace(uv=uv[:2], dynamic=np.ones(2, bool), timings_ms={}))
+    assert alone.fp_by_kind["> 40 px"] == 2

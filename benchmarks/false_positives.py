@@ -1,0 +1,59 @@
+"""Where a filter's false positives lie: keypoints judged dynamic on static points, split by kind (movers at
+rest, then the distance from the nearest moving outline) and by the stage that flagged them.
+
+Usage::
+
+    python benchmarks/false_positives.py --sequences crowd_rpy,panel_rpy --frames 240
+    python benchmarks/false_positives.py --sequences random_113 --filters geometry,full+oracle --config before.toml
+
+Renders (cached) each synthetic sequence (stress scenes, ``random_N``, office presets) and runs each filter
+(``geometry`` = no detector; ``NAME+oracle`` with the oracle detector) without loop closing, scored against
+the renderer's truth (``dynslam_lab.experiments.scoring.KeypointScorer``). Prints one markdown row per run: ATE,
+keypoint precision / recall, the false positives by kind (``FP_KINDS``) and the stages that flagged most of them.
+docs/robustness.md ("Where the false positives are") reads such a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sequences", default="crowd_rpy,panel_rpy", help="comma-separated stress scenes, random_N or office presets")
+    ap.add_argument("--frames", type=int, default=240, help="frames rendered and run per sequence (default 240)")
+    ap.add_argument("--filters", default="geometry", help="comma-separated: a filter (no detector) or FILTER+oracle")
+    ap.add_argument("--config", default=None, help="a TOML file of parameters for every run")
+    ap.add_argument("--out", default=None, help="folder for the run outputs (default: a temporary folder)")
+    args = ap.parse_args(argv)
+
+    from dynslam_lab.config import Config, load_config
+    from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.experiments.robustness import run_one, synthetic_specs
+    from dynslam_lab.experiments.scoring import FP_KINDS, KeypointScorer
+
+    config = load_config(args.config, Config()) if args.config else Config()
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="false_positives_"))
+    specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
+    print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) |")
+    print("|---|---|---|---|" + "---|" * len(FP_KINDS) + "---|")
+    t0 = time.time()
+    for spec in specs:
+        for label in (f.strip() for f in args.filters.split(",") if f.strip()):
+            filters, _, detector = label.partition("+")
+            scorer = KeypointScorer()
+            r = run_one(TumSequence(spec.root), out / f"{spec.name}_{label.replace('+', '_')}", config, filters,
+                        detector or "none", loop_closing=False, scorer=scorer)
+            kinds = scorer.fp_by_kind
+            stages = ", ".join(f"{k or '?'} {v}" for k, v in scorer.fp_by_stage.most_common(3))
+            print(f"| `{spec.name}` | {label} | {r['ate_rmse_m']:.4f} | {r['precision']:.2f} / {r['recall']:.2f} | "
+                  + " | ".join(f"{kinds[k]:,}" for k in FP_KINDS) + f" | {stages} |", flush=True)
+    print(f"\n{len(specs)} sequences in {time.time() - t0:.0f} s; runs in {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
