@@ -78,7 +78,7 @@ class ReferencePoseConfig:
     segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
-    segment_joint_ratio: float = 0.0  # > 0: ... and only when, under the pose of all matches, its median error is this many times the rest's or the rest fits its own pose dominant_gain_weak times better (0 = off, the default: docs/robustness.md "Two groups that fit one pose"); ours
+    segment_joint_ratio: float = 0.0  # > 0: ... and only when, under the pose of all matches, its median error is this many times the rest's, or the rest fits its own pose dominant_gain_weak times better, or the pose without it lies closer to the prediction (0 = off, the default: it hid movers the tracker had begun to follow, docs/robustness.md "Two groups that fit one pose"); ours
     room_test: bool = True  # test a surface holding most matches against the room (step 3b; on since the ORB budget, without held surfaces: docs/robustness.md "The room test, on by default"); ours
     dominant_share: float = 0.4  # a surface holding this share of the matches ... (step 3b); ours
     dominant_gain: float = 1.5  # ... when the room's median error under the pose with the surface is this many times that under its own pose (the surface pulled the pose) ...; ours
@@ -304,12 +304,16 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     ``T_c_w``, on the matches ``use``). The surface is inconsistent when its median error (in units of
     ``sigma``) under that pose exceeds both ``segment_min_px`` and ``segment_ratio`` times the median of
     the others. With ``segment_joint_ratio > 0`` (off by default) the two groups must also disagree under
-    ``T_c_w`` itself (the pose of all matches): the surface misses it ``segment_joint_ratio`` times more than
-    the rest does, or the rest fits its own pose ``dominant_gain_weak`` times better than ``T_c_w`` (the
-    surface pulled it). Without that check a large static wall left out missed the pose of a few dozen
-    matches elsewhere by 1.6-3.9 sigma while both fitted ``T_c_w`` within noise (``panel_rpy``,
-    ``random_161``); with it, movers at their onset, which fit ``T_c_w`` as well, were let through too
-    (docs/robustness.md, "Two groups that fit one pose"). Two groups that disagree are symmetric
+    ``T_c_w`` itself (the pose of all matches): the surface
+    misses it ``segment_joint_ratio`` times more than the rest does, or the rest fits its own pose
+    ``dominant_gain_weak`` times better than ``T_c_w`` (the surface pulled it); when both fit ``T_c_w``, the
+    constant-velocity prediction ``T_pred`` decides: the surface moved if the pose without it lies closer to
+    the prediction than ``T_c_w`` does. Without that check a large static wall left out missed the pose of a
+    few dozen matches elsewhere by 1.6-3.9 sigma while both fitted ``T_c_w`` within noise (``panel_rpy``,
+    ``random_161``); without the prediction's say, movers at their onset, which fit ``T_c_w`` as well, were
+    let through too; and once tracking has begun to follow a mover, ``T_c_w`` and the prediction both carry
+    it and the check hides the mover that would have set them right (docs/robustness.md, "Two groups that fit
+    one pose"). Two groups that disagree are symmetric
     (is the box moving, or everything but the box?): a surface holding less than half the matches is moving (the static majority); one holding
     more only when the pose without it lies closer to the constant-velocity prediction ``T_pred``
     than the pose with it. The worst such surface (minorities first) is removed and the search
@@ -369,11 +373,13 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
                 # left out, a surface misses a pose the rest alone fixes poorly (a large wall against a few
                 # dozen matches elsewhere) by as much as a mover misses it; one pose that fits both groups
                 # (all matches) says the surface agrees with the rest, unless the surface pulled it there
+                # (the rest fits its own pose better, or that pose lies closer to the prediction)
                 if e_T is None:
                     e_T = _reprojection_px(T, X_w, uv, K) / sigma
                 miss = np.median(e_T[on]) / max(np.median(e_T[rest]), 1e-9)
                 pulled = np.median(e_T[rest]) / max(r_rest, 1e-9)
-                if miss < config.segment_joint_ratio and pulled < config.dominant_gain_weak:
+                closer = T_pred is not None and _pose_gap_px(T_l, T_pred, X_w[use], K) < gap_with
+                if miss < config.segment_joint_ratio and pulled < config.dominant_gain_weak and not closer:
                     continue
             if dominant:  # evidence that the surface pulled T: the room fits its own pose clearly better, or
                 # somewhat better while the surface misses by twice the bound (a poorly constrained room's pose
