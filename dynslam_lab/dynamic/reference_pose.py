@@ -79,6 +79,7 @@ class ReferencePoseConfig:
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
     segment_joint_ratio: float = 0.0  # > 0: ... and only when, under the pose of all matches, its median error is this many times the rest's, or the rest fits its own pose dominant_gain_weak times better, or the pose without it lies closer to the prediction (0 = off, the default: it hid movers the tracker had begun to follow, docs/robustness.md "Two groups that fit one pose"); ours
+    segment_joint_spread: float = 0.5  # ... the joint check clears a surface only where the rest alone fixes its pixels to this or worse (sigma units); ours
     room_test: bool = True  # test a surface holding most matches against the room (step 3b; on since the ORB budget, without held surfaces: docs/robustness.md "The room test, on by default"); ours
     dominant_share: float = 0.4  # a surface holding this share of the matches ... (step 3b); ours
     dominant_gain: float = 1.5  # ... when the room's median error under the pose with the surface is this many times that under its own pose (the surface pulled the pose) ...; ours
@@ -102,6 +103,8 @@ class ReferencePoseConfig:
             raise ValueError(f"ReferencePoseConfig.scales_px must be positive pixel scales, got {self.scales_px}")
         if self.moving_px <= self.inlier_px:
             raise ValueError(f"ReferencePoseConfig.moving_px ({self.moving_px}) must exceed inlier_px ({self.inlier_px})")
+        if not self.segment_joint_spread >= 0:
+            raise ValueError(f"ReferencePoseConfig.segment_joint_spread must be >= 0 sigma, got {self.segment_joint_spread}")
         if not self.segment_joint_ratio >= 0:
             raise ValueError(f"ReferencePoseConfig.segment_joint_ratio must be >= 0 (0 = no check), got {self.segment_joint_ratio}")
         if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1 or self.segment_max_movers < 0:
@@ -209,6 +212,26 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     m = X.shape[1]
+    J, xz, yz = _projection_jacobian(X, K)
+    r = np.empty(2 * m)  # residuals in px
+    np.subtract(qt[0], fx * xz + cx, out=r[:m])
+    np.subtract(qt[1], fy * yz + cy, out=r[m:])
+    isg2 = inv_sigma * inv_sigma
+    e2 = r * r
+    q = e2[:m] + e2[m:]
+    q *= isg2
+    q *= 1.0 / (s * s)
+    q += 1.0
+    w = isg2 / q
+    Jw = J * np.concatenate([w, w])
+    return Jw @ J.T, Jw @ r
+
+
+def _projection_jacobian(X: np.ndarray, K: np.ndarray):
+    """``(J (6, 2M), x/z, y/z)``: the Jacobian of the pixels of the camera points ``X (3, M)`` for a left
+    perturbation ``(omega, v)`` of the pose, the ``u`` rows of every point first, then the ``v`` rows."""
+    fx, fy = K[0, 0], K[1, 1]
+    m = X.shape[1]
     iz = 1.0 / X[2]
     xz, yz = X[0] * iz, X[1] * iz
     J = np.zeros((6, 2 * m))
@@ -228,18 +251,32 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     np.multiply(iz, fy, out=jv[4])
     np.multiply(xz * iz, -fx, out=ju[5])
     np.multiply(yz * iz, -fy, out=jv[5])
-    r = np.empty(2 * m)  # residuals in px
-    np.subtract(qt[0], fx * xz + cx, out=r[:m])
-    np.subtract(qt[1], fy * yz + cy, out=r[m:])
-    isg2 = inv_sigma * inv_sigma
-    e2 = r * r
-    q = e2[:m] + e2[m:]
-    q *= isg2
-    q *= 1.0 / (s * s)
-    q += 1.0
-    w = isg2 / q
-    Jw = J * np.concatenate([w, w])
-    return Jw @ J.T, Jw @ r
+    return J, xz, yz
+
+
+def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
+                  fixed: np.ndarray, judged: np.ndarray) -> float:
+    """How well the matches ``fixed`` alone fix the pixels of the matches ``judged``: the median over ``judged``
+    of the standard deviation (in units of each keypoint's ``sigma``) of its predicted pixel under ``T_c_w``
+    with the covariance ``s^2 H^-1`` of the pose fitted on ``fixed`` (``H`` the Gauss-Newton information of
+    those matches, ``s`` their noise level from the median residual). ``inf`` when they do not fix a pose."""
+    Xf = transform_points(T_c_w, X_w[fixed]).T
+    Xj = transform_points(T_c_w, X_w[judged]).T
+    if Xf.shape[1] < 6 or not (Xf[2] > 1e-6).all() or not (Xj[2] > 1e-6).all():
+        return float("inf")
+    Jf, _, _ = _projection_jacobian(Xf, K)
+    w = 1.0 / np.asarray(sigma[fixed], np.float64) ** 2
+    H = (Jf * np.concatenate([w, w])) @ Jf.T
+    noise = np.median(_reprojection_px(T_c_w, X_w[fixed], uv[fixed], K) / sigma[fixed]) / 1.1774  # Rayleigh median
+    try:
+        C = np.linalg.inv(H) * noise**2
+    except np.linalg.LinAlgError:
+        return float("inf")
+    Jj, _, _ = _projection_jacobian(Xj, K)
+    Jj = Jj / np.tile(np.asarray(sigma[judged], np.float64), 2)
+    rows = np.einsum("am,ab,bm->m", Jj, C, Jj)
+    m = Xj.shape[1]
+    return float(np.median(np.sqrt(np.maximum(rows[:m] + rows[m:], 0.0))))
 
 
 def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfig):
@@ -308,12 +345,13 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     misses it ``segment_joint_ratio`` times more than the rest does, or the rest fits its own pose
     ``dominant_gain_weak`` times better than ``T_c_w`` (the surface pulled it); when both fit ``T_c_w``, the
     constant-velocity prediction ``T_pred`` decides: the surface moved if the pose without it lies closer to
-    the prediction than ``T_c_w`` does. Without that check a large static wall left out missed the pose of a
+    the prediction than ``T_c_w`` does; and it clears a surface only where the rest alone fixes the surface's
+    pixels to ``segment_joint_spread`` sigma or worse (:func:`_pixel_spread`). Without that check a large static wall left out missed the pose of a
     few dozen matches elsewhere by 1.6-3.9 sigma while both fitted ``T_c_w`` within noise (``panel_rpy``,
     ``random_161``); without the prediction's say, movers at their onset, which fit ``T_c_w`` as well, were
     let through too; and once tracking has begun to follow a mover, ``T_c_w`` and the prediction both carry
-    it and the check hides the mover that would have set them right (docs/robustness.md, "Two groups that fit
-    one pose"). Two groups that disagree are symmetric
+    it and the ratios hide the mover that would have set them right, where the rest fixes the pose well
+    (hence the spread; docs/robustness.md, "Two groups that fit one pose"). Two groups that disagree are symmetric
     (is the box moving, or everything but the box?): a surface holding less than half the matches is moving (the static majority); one holding
     more only when the pose without it lies closer to the constant-velocity prediction ``T_pred``
     than the pose with it. The worst such surface (minorities first) is removed and the search
@@ -380,7 +418,9 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
                 pulled = np.median(e_T[rest]) / max(r_rest, 1e-9)
                 closer = T_pred is not None and _pose_gap_px(T_l, T_pred, X_w[use], K) < gap_with
                 if miss < config.segment_joint_ratio and pulled < config.dominant_gain_weak and not closer:
-                    continue
+                    # the ratios clear the surface only where the rest alone fixes its pixels poorly
+                    if _pixel_spread(T_l, X_w, uv, K, sigma, rest, on) >= config.segment_joint_spread:
+                        continue
             if dominant:  # evidence that the surface pulled T: the room fits its own pose clearly better, or
                 # somewhat better while the surface misses by twice the bound (a poorly constrained room's pose
                 # alone makes a static surface miss by less)
