@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..dynamic.oracle import truth_dynamic
+from ..dynamic.oracle import moving_mask, truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
 
 __all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "FP_DISTANCE_EDGES_PX", "FP_KINDS"]
@@ -178,7 +178,7 @@ class KeypointScorer:
                 uv_fp = np.asarray(result.uv)[fp]
                 ids = values_at(frame.instance_mask, uv_fp, outside=0)
                 self.fp_by_instance.update(int(i) for i in ids[ids > 0])
-                moving = np.isin(frame.instance_mask, list(frame.moving_ids or ()))
+                moving = moving_mask(frame)  # the truth's own mask (a-priori classes without moving_ids)
                 if moving.any():
                     dist = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
                     d = values_at(dist, uv_fp, outside=np.inf)
