@@ -264,10 +264,12 @@ def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndar
     Xj = transform_points(T_c_w, X_w[judged]).T
     if Xf.shape[1] < 6 or not (Xf[2] > 1e-6).all() or not (Xj[2] > 1e-6).all():
         return float("inf")
-    Jf, _, _ = _projection_jacobian(Xf, K)
+    Jf, xz, yz = _projection_jacobian(Xf, K)
     w = 1.0 / np.asarray(sigma[fixed], np.float64) ** 2
     H = (Jf * np.concatenate([w, w])) @ Jf.T
-    noise = np.median(_reprojection_px(T_c_w, X_w[fixed], uv[fixed], K) / sigma[fixed]) / 1.1774  # Rayleigh median
+    # the residuals from the projections just computed (the points are not transformed again)
+    err = np.hypot(uv[fixed, 0] - (K[0, 0] * xz + K[0, 2]), uv[fixed, 1] - (K[1, 1] * yz + K[1, 2]))
+    noise = np.median(err / sigma[fixed]) / 1.1774  # Rayleigh median
     try:
         C = np.linalg.inv(H) * noise**2
     except np.linalg.LinAlgError:
