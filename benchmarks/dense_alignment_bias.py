@@ -1,7 +1,7 @@
 """How far the dense point-to-plane term alone puts a frame from its true pose (issue 12).
 
 For pairs of frames of a rendered sequence (``dynslam synth``), the reference depth (one earlier frame, or
-the fused model of several, :func:`~dynslam_lab.slam.depth_alignment.fuse_depth_model`) is placed at its
+the fused model of several, :func:`~dynslam_lab.geometry.depth_alignment.fuse_depth_model`) is placed at its
 true pose and the frame's depth is aligned to it by depth alone (motion-only BA with the dense term, no
 features, no prior), starting at the frame's true pose. The distance of the optimum from the truth is the
 term's own error: noise and the Kinect's quantised depth (steps ``z^2 q / (f b)``), which ``smooth_depth``
@@ -23,7 +23,7 @@ def main() -> None:
     from dynslam_lab.datasets.kinect import DepthNoise, nguyen_sigma
     from dynslam_lab.datasets.tum import TumSequence
     from dynslam_lab.geometry.se3 import rotation_angle_deg, se3_inv
-    from dynslam_lab.slam.depth_alignment import DenseTerm, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
+    from dynslam_lab.geometry.depth_alignment import DenseTerm, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
     from dynslam_lab.slam.optimize import Observations, optimize_pose
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -3,7 +3,7 @@
 
 Usage::
 
-    python benchmarks/screening_speed.py [--preset walking_xyz[,boxes_xyz,...]] [--frames 60] [--filters full] [--threads 1]
+    python benchmarks/screening_speed.py [--preset walking_xyz[,boxes_xyz,...]] [--frames 60] [--filters full] [--threads 1] [--config FILE.toml]
 
 Renders (cached) each synthetic sequence (office presets, stress scenes, ``random_N``) and runs the SLAM system
 of each filter (``build_pipeline``, the oracle detector for the filters that need one, no loop closing) over it. Screening runs as in a real run: with the
@@ -32,14 +32,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--filters", default="semantic;depth_ransac;geometry;full", help="filters separated by ';'")
     ap.add_argument("--threads", type=int, default=None, help="OpenCV threads (default: OpenCV's choice)")
+    ap.add_argument("--config", default=None, help="a TOML file of parameters for every run (e.g. [screening.reference] room_depth_gain = 0.0)")
     args = ap.parse_args(argv)
 
     import cv2
 
     from dynslam_lab.datasets.synthetic import synthetic_sequence
     from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.config import Config, load_config
     from dynslam_lab.experiments.robustness import _stress_preset
 
+    config = load_config(args.config, Config()) if args.config else Config()
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
     filters = [f.strip() for f in args.filters.split(";") if f.strip()]
@@ -47,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in [p.strip() for p in args.preset.split(",") if p.strip()]:
         stress_preset = _stress_preset(name, args.frames)
         seq = TumSequence(synthetic_sequence(stress_preset) if stress_preset is not None else synthetic_sequence(name, n_frames=args.frames))
-        for row in _one_sequence(name, seq, filters, cv2):
+        for row in _one_sequence(name, seq, filters, cv2, config):
             summary.append(row)
     if any(f == "oracle" for _, f, *_ in summary):
         print()
@@ -60,9 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _one_sequence(preset: str, seq, filters: list[str], cv2) -> list[tuple[str, str, float, float, float]]:
-    """Run every filter over one sequence; print its stage table and quality; return the summary rows."""
-    from dynslam_lab.config import Config
+def _one_sequence(preset: str, seq, filters: list[str], cv2, config) -> list[tuple[str, str, float, float, float]]:
+    """Run every filter over one sequence with ``config``; print its stage table and quality; return the summary rows."""
     from dynslam_lab.dynamic.oracle import truth_dynamic
     from dynslam_lab.experiments.scoring import score_keypoints
     from dynslam_lab.pipeline import build_pipeline
@@ -75,7 +77,7 @@ def _one_sequence(preset: str, seq, filters: list[str], cv2) -> list[tuple[str, 
     quality: dict[str, tuple[float, float, float, float, float]] = {}
     for name in filters:
         det = "none" if name in ("geometry", "oracle") or name.startswith("epipolar") else "oracle"
-        system = build_pipeline(Config(), seq.camera, detector=det, filters=name, loop_closing=False)
+        system = build_pipeline(config, seq.camera, detector=det, filters=name, loop_closing=False)
         screen_cpu: list[float] = []
         screen = system.screener.screen
 

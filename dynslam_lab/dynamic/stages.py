@@ -44,6 +44,7 @@ from .motion_probability import restore_by_motion_probability
 from .multiframe import eroded_depth, free_space_test, grid_points, vanished_test
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
+from .room_depth import RoomDepth, reference_grid, room_labels, room_points
 from .regions import cells_at, depth_continuity, grow_regions, prior_on_fresh_surfaces, splat, supported_regions, surface_segments
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
@@ -183,14 +184,41 @@ class FrameWork:
 
         def run():
             labels = self.surfaces()  # also caches the cells of each surface
+            room, room_ids = self._room_depth()
             ref = map_reference_pose(self.context, self.uv_undistorted, self.camera, self.config.reference,
                                      exclude_ids=self.memory.moving_points.array(), surfaces=labels,
-                                     surface_cells=self._cache["surface_cells"])
+                                     surface_cells=self._cache["surface_cells"], room_depth=room, room_ids=room_ids)
             if ref.T_c_w is None:
                 ref = self._two_frame_reference()
             return ref
 
         return self._timed("reference_pose", run)
+
+    def _room_depth(self) -> tuple[RoomDepth | None, np.ndarray | None]:
+        """The room's depth points and the oldest earlier frame with a pose (step 3c of the reference pose,
+        :mod:`.room_depth`), and the labels of the room's surfaces (those holding ``room_depth_min_share`` of
+        the grid's depth cells, less those lying mostly inside the previous frame's dynamic region);
+        ``(None, None)`` when off or without an earlier frame."""
+        cfg = self.config.reference
+        refs = self.references()
+        if cfg.room_depth_gain <= 0 or not refs or self.context is None or self.context.T_c_w_pred is None:
+            return None, None
+        past = refs[-1]
+        f = self.config.multiframe.factor
+        cam = self.grid_camera
+        grid_labels = self.surface_grid()
+        # a surface lying mostly inside the previous frame's dynamic region is a mover, not the room (the
+        # temporal prior; the share of TemporalConfig.hold_overlap)
+        ids = room_labels(self.small_depth, self._cache["surface_cells"], cfg.room_depth_min_share, grid_labels,
+                          self.prev.region if self.prev is not None else None, self.config.temporal.hold_overlap)
+        X = room_points(self.small_depth, grid_labels, ids, cam)
+        grid = _cached(past, "normal_grid", lambda: reference_grid(_past_small_depth(past, f), cam))
+        return RoomDepth(X, grid, se3_inv(past.T_w_c), cam), ids
+
+    def surface_grid(self) -> np.ndarray:
+        """``(h, w)`` int surface label of each reduced-grid cell (0 = none; :meth:`surfaces`)."""
+        self.surfaces()
+        return self._cache["surface_labels"]
 
     def _two_frame_reference(self) -> ReferencePose:
         """Without a SLAM system: chain the two-frame rough pose (Chang et al. 2021's "slightly
@@ -605,7 +633,7 @@ def _held_surfaces(w: FrameWork, ref: ReferencePose) -> np.ndarray:
     if cfg.hold_frames <= 0 or "surface_labels" not in w._cache or ref.T_c_w is None:
         mem.held = None
         return out
-    grid = w._cache["surface_labels"]
+    grid = w.surface_grid()
     labels = w.surfaces()
     fresh = np.unique(labels[ref.surface_moved & (labels > 0)])
     held = np.zeros(0, np.int64)
@@ -652,8 +680,7 @@ def regions_stage(w: FrameWork) -> None:
     if w.static_cells is not None:
         reopen = prior
         if cfg.prior_on_fresh_surfaces and prior.any():
-            w.surfaces()  # computes the grid's surface labels once a frame (cached)
-            reopen = prior_on_fresh_surfaces(prior, fresh, w._cache["surface_labels"], cfg.min_fresh_cells)
+            reopen = prior_on_fresh_surfaces(prior, fresh, w.surface_grid(), cfg.min_fresh_cells)
         allowed &= ~w.static_cells | reopen
     allowed &= ~(vanished & ~prior)  # background a mover has just uncovered
     continuity = depth_continuity(small, cfg.continuity_rel)

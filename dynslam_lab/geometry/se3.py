@@ -152,19 +152,29 @@ def skew(v: np.ndarray) -> np.ndarray:
     return S
 
 
+def _cv2():
+    import cv2  # here, as scipy above: reading poses needs neither
+
+    return cv2
+
+
 def so3_exp(omega: np.ndarray) -> np.ndarray:
     """Rotation vector(s) ``(..., 3)`` (radians) to matrices ``(..., 3, 3)`` (Rodrigues)."""
+    omega = np.asarray(omega, dtype=np.float64)
+    if omega.shape == (3,):  # one rotation (the solvers' steps): OpenCV's Rodrigues, ~20x faster than scipy's
+        return _cv2().Rodrigues(omega)[0]
     from scipy.spatial.transform import Rotation  # here: the viewer reads poses without loading scipy
 
-    omega = np.asarray(omega, dtype=np.float64)
     return Rotation.from_rotvec(omega.reshape(-1, 3)).as_matrix().reshape(omega.shape[:-1] + (3, 3))
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (radians)."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape == (3, 3):  # one rotation: OpenCV's Rodrigues (same vector up to rounding)
+        return _cv2().Rodrigues(R)[0].reshape(3)
     from scipy.spatial.transform import Rotation  # here: the viewer reads poses without loading scipy
 
-    R = np.asarray(R, dtype=np.float64)
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 

@@ -359,7 +359,7 @@ class _PoseTerms:
 
 def _evaluate_pose(R: np.ndarray, t: np.ndarray, terms: _PoseTerms, delta2: float | None, dense=None) -> tuple[float, tuple]:
     """Robust cost of the pose ``(R, t)`` and what its linearisation needs (points behind the camera
-    left out); with ``dense`` (a :class:`~.depth_alignment.DenseTerm`) its point-to-plane residuals
+    left out); with ``dense`` (a :class:`~dynslam_lab.geometry.depth_alignment.DenseTerm`) its point-to-plane residuals
     are added, each point it cannot associate costing as much as one at the association gate (so
     that losing points never lowers the cost)."""
     RX = terms.X @ R.T
@@ -439,7 +439,7 @@ def optimize_pose(
     X_w : ``(K, 3)`` world points (metres); obs : their measurements.
     rounds : outlier re-classification rounds (ORB-SLAM2: 4); the last without the Huber kernel.
     max_iterations : Levenberg-Marquardt iterations per round at most (ORB-SLAM2: 10).
-    dense : optional :class:`~.depth_alignment.DenseTerm`, point-to-plane residuals of the frame's
+    dense : optional :class:`~dynslam_lab.geometry.depth_alignment.DenseTerm`, point-to-plane residuals of the frame's
         depth added to the cost (ours, for frames with few features); its points are re-associated
         at every evaluation.
 

@@ -45,7 +45,7 @@ For each new frame, with only the keypoints the screening stage judged static:
    PnP-RANSAC, pose refinement and local-map search, accepted with 50 inliers.
 
 **Dense depth term** (ours, ``dense``: docs/tracking.md "Dense depth term" has the
-measurements; :mod:`.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
+measurements; :mod:`~dynslam_lab.geometry.depth_alignment`): ``"always"`` tracks every frame with the point-to-plane error of
 its depth image against the last frame's in each motion-only BA (plus a weak prior to the motion
 prediction), ``"weak"`` only frames the features fail or keep few inliers, ``"auto"`` (the default) only
 frames the features fail, or keep few inliers with a pose off the motion prediction (suspect), so plain
@@ -87,7 +87,7 @@ from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
-from .depth_alignment import DenseTerm, DepthGrid, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
+from ..geometry.depth_alignment import DenseTerm, DepthGrid, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
@@ -463,7 +463,7 @@ class Tracker:
 
     def _dense_depth(self, frame: SlamFrame) -> np.ndarray:
         """``frame``'s depth image as the dense term reads it: averaged over ``dense_smooth_px`` px
-        (:func:`~.depth_alignment.smooth_depth`; cached for the frame being tracked, which is the next one's
+        (:func:`~dynslam_lab.geometry.depth_alignment.smooth_depth`; cached for the frame being tracked, which is the next one's
         last frame)."""
         if frame.index not in self._smoothed:
             self._smoothed = {k: v for k, v in self._smoothed.items() if k > frame.index - 2}
@@ -500,7 +500,7 @@ class Tracker:
         """The reference of the dense term for ``dense_reference = "keyframes"``: the depth samples of the most
         recent ``dense_model_keyframes`` keyframes (at their current poses; the keyframes local BA and loop
         closing optimise against the map, so the model does not follow the last frame's error) fused into a
-        grid seen from ``T_r_w`` (:func:`~.depth_alignment.fuse_depth_model`), the last frame's samples filling
+        grid seen from ``T_r_w`` (:func:`~dynslam_lab.geometry.depth_alignment.fuse_depth_model`), the last frame's samples filling
         the cells none of them reaches (``dense_model_last_frame``). None without any depth."""
         cfg, last = self.cfg, self.last
         kids = [k for k in sorted(self._kf_depth, reverse=True)
@@ -522,7 +522,7 @@ class Tracker:
         return fuse_depth_model(sources, T_r_w, self.camera, cfg.dense_stride)[0]
 
     def _dense_term(self, frame: SlamFrame, T_ref: np.ndarray | None = None) -> DenseTerm | None:
-        """The point-to-plane term of ``frame``'s depth (module :mod:`.depth_alignment`) against the last
+        """The point-to-plane term of ``frame``'s depth (module :mod:`~dynslam_lab.geometry.depth_alignment`) against the last
         frame's depth image (``dense_reference = "frame"``) or the model of recent keyframes' depth
         (``"keyframes"``, :meth:`dense_reference_model`, seen from ``T_ref``, a ``T_c_w`` near the frame's pose;
         the motion prediction when None); None without depth on both sides."""
@@ -847,7 +847,7 @@ class Tracker:
 
     def refine_joint(self, frame: SlamFrame) -> bool:
         """Motion-only BA of ``frame``'s feature matches together with the dense depth term (its depth
-        image against the last frame's, :mod:`.depth_alignment`), from the feature pose. Kept (method
+        image against the last frame's, :mod:`~dynslam_lab.geometry.depth_alignment`), from the feature pose. Kept (method
         ``"joint"``) when ``dense_min_fraction`` of the depth samples are associated and
         ``min_track_inliers`` matches stay inliers; otherwise the feature pose stands."""
         cfg = self.cfg

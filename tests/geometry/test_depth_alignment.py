@@ -9,7 +9,7 @@ from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp
 from dynslam_lab.slam import optimize as opt
 from dynslam_lab.datasets.kinect import DepthNoise, kinect_depth, nguyen_sigma
-from dynslam_lab.slam.depth_alignment import DenseTerm, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
+from dynslam_lab.geometry.depth_alignment import DenseTerm, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
 from dynslam_lab.slam.optimize import Observations, optimize_pose
 
 CAM = CAMERA_PRESETS["default"]

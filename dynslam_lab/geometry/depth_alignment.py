@@ -13,7 +13,7 @@ the earlier ("reference") image, ``Y_j`` and ``n_j`` the vertex and unit normal 
 depth image at the pixel where ``T_r_c X_j`` projects, ``sigma_j`` the depth noise at ``X_j``.
 
 In motion-only BA the frame's pose is ``T_c_w = (R, t)``, moved by ``R <- Exp(omega) R``,
-``t <- t + tau`` (:mod:`.optimize`). With the reference pose ``T_r_w = (R_r, t_r)`` the frame's
+``t <- t + tau`` (:mod:`dynslam_lab.slam.optimize`). With the reference pose ``T_r_w = (R_r, t_r)`` the frame's
 point in the world is ``X_w = R^T (X - t)``; a step gives ``dX_w / d omega = R^T [X - t]_x`` and
 ``dX_w / d tau = -R^T``, so with ``m = R R_r^T n`` (the normal in the frame's camera) and
 ``p = X - t``::
@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import skew, so3_log
+from .se3 import skew, so3_log
 
 __all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model"]
 
