@@ -335,24 +335,22 @@ check("10.2", answer, float(fs.margin_m[0]), atol=1e-5)
 # the keypoints by the stage that flagged them (`dynslam_lab.dynamic.plots.draw_table`). Move the floor
 # of the free-space margin $\tau$ (`MultiFrameConfig.depth_m`), the region growth
 # (`RegionConfig.steps`), the earlier frames used (`MultiFrameConfig.offsets`), where the previous
-# frame's region may reopen cells confirmed static (`RegionConfig.prior_on_fresh_surfaces`), whether the
-# room's depth may correct the reference pose (step 3c, `ReferencePoseConfig.room_depth_gain`: the large
-# surfaces' depth aligned to 16 frames back; 0 turns it off), or the frame.
+# frame's region may reopen cells confirmed static (`RegionConfig.prior_on_fresh_surfaces`), or the frame.
+# (Step 3c of the reference pose, the room's depth, `ReferencePoseConfig.room_depth_gain`, never fires on
+# these frames of `boxes_xyz`, so it has no control here: `docs/robustness.md`, "The room's depth (step 3c)",
+# lists the scenes where it does.)
 
 # %% figures=1
 OFFSETS = {"1 (one frame)": (1,), "1, 2, 4": (1, 2, 4), "1, 2, 4, 8, 16": (1, 2, 4, 8, 16)}
 
 
 PRIOR = {"on surfaces with fresh evidence": True, "anywhere (before 2026-12-04)": False}
-ROOM_DEPTH = {"on (gain 1.5)": 1.5, "off (before 2026-12-05)": 0.0}
 
 
-def draw_evidence(index=22, depth_m=0.1, steps=64, offsets="1, 2, 4, 8, 16", prior="on surfaces with fresh evidence",
-                  room_depth="on (gain 1.5)"):
+def draw_evidence(index=22, depth_m=0.1, steps=64, offsets="1, 2, 4, 8, 16", prior="on surfaces with fresh evidence"):
     sc = config.screening
     cfg = dataclasses.replace(sc, multiframe=dataclasses.replace(sc.multiframe, depth_m=depth_m, offsets=OFFSETS[offsets]),
-                              regions=dataclasses.replace(sc.regions, steps=steps, prior_on_fresh_surfaces=PRIOR[prior]),
-                              reference=dataclasses.replace(sc.reference, room_depth_gain=ROOM_DEPTH[room_depth]))
+                              regions=dataclasses.replace(sc.regions, steps=steps, prior_on_fresh_surfaces=PRIOR[prior]))
     screener = build_screener("geometry", cfg)
     for i in range(max(0, index - 16), index + 1):
         uv, detections, context = geo["inputs"][i]
@@ -371,14 +369,12 @@ def draw_evidence(index=22, depth_m=0.1, steps=64, offsets="1, 2, 4, 8, 16", pri
 
 figure_explorer(draw_evidence, name="10 geometry evidence",
                 probes={"index": [5, 40], "depth_m": [0.02, 0.6], "steps": [0, 16],
-                        "offsets": ["1 (one frame)", "1, 2, 4"], "prior": ["anywhere (before 2026-12-04)"],
-                        "room_depth": ["off (before 2026-12-05)"]},
+                        "offsets": ["1 (one frame)", "1, 2, 4"], "prior": ["anywhere (before 2026-12-04)"]},
                 index=int_slider("frame", 22, 2, N_FRAMES - 1),
                 depth_m=float_slider("tau floor depth_m [m]", 0.1, 0.02, 0.6, 0.02),
                 steps=int_slider("region steps [cells]", 64, 0, 96),
                 offsets=dropdown("earlier frames", list(OFFSETS), "1, 2, 4, 8, 16"),
-                prior=dropdown("the prior reopens static cells", list(PRIOR), "on surfaces with fresh evidence"),
-                room_depth=dropdown("step 3c: the room's depth", list(ROOM_DEPTH), "on (gain 1.5)"));
+                prior=dropdown("the prior reopens static cells", list(PRIOR), "on surfaces with fresh evidence"));
 
 # %% [markdown]
 # **What to look for**: at frame 22 the left box is found: fresh evidence and flagged keypoints on its

@@ -501,7 +501,8 @@ def depth_moved_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: 
     none = (np.zeros(len(X_w), bool), T_c_w, False)
     if room is None or config.room_depth_gain <= 0 or len(room_ids) == 0:
         return none
-    on_room = matched & np.isin(labels, room_ids)
+    in_room = np.isin(labels, room_ids)
+    on_room = matched & in_room
     if on_room.sum() < config.segment_min_matches:
         return none
     a = align_room(room, T_c_w)
@@ -514,7 +515,7 @@ def depth_moved_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: 
         return none  # the room's own map points disagree with its depth (the map, not the features, is off)
     bound = max(config.room_depth_miss, config.segment_ratio * r_room)
     moving = np.zeros(len(X_w), bool)
-    off = matched & (labels > 0) & ~np.isin(labels, room_ids)
+    off = matched & (labels > 0) & ~in_room
     labs, counts = np.unique(labels[off], return_counts=True)
     for lab in labs[counts >= config.room_depth_min_matches]:
         on = off & (labels == lab)

@@ -96,10 +96,8 @@ def room_points(small_depth: np.ndarray, labels: np.ndarray, room: np.ndarray, c
     ``small_depth (h, w)`` whose surface (``labels (h, w)``) is one of ``room`` (:func:`room_labels`). Every
     4th cell of a 160x120 grid gives at most 1,200 points: a pose to a fraction of a millimetre, at a few
     milliseconds for the alignment."""
-    big = room
-    sub_labels = labels[::step, ::step]
     z = small_depth[::step, ::step]
-    keep = np.isin(sub_labels, big) & (z > 0)
+    keep = np.isin(labels[::step, ::step], room) & (z > 0)
     v, u = np.nonzero(keep)
     v, u = v * step, u * step
     zk = small_depth[v, u].astype(np.float64)
@@ -124,7 +122,7 @@ def align_room(room: RoomDepth, T_start: np.ndarray, iterations: int = 8, huber:
     term = DenseTerm(room.X, depth_sigma(room.X[:, 2]), room.ref, room.T_r_w, room.camera, max_distance=max_distance,
                      T_prior=T_start, prior_sigma=(prior_m, prior_deg))
     R, t = T_start[:3, :3].copy(), T_start[:3, 3].copy()
-    d_start = _median_distance(term, R, t)
+    d_start, _ = _median_distance(term, R, t)
     for _ in range(iterations):
         e, J, _ = term.residuals(R, t)
         a = np.abs(e)
@@ -139,11 +137,11 @@ def align_room(room: RoomDepth, T_start: np.ndarray, iterations: int = 8, huber:
         t = t + step[3:]
         if np.linalg.norm(step[:3]) < tol_rad and np.linalg.norm(step[3:]) < tol_m:
             break
-    idx, _, d = term.associate(R, t)
-    d_end = float(np.median(np.abs(d))) if len(d) else float("nan")
-    return RoomAlignment(make_pose(R, t), d_start, d_end, len(idx))
+    d_end, n = _median_distance(term, R, t)
+    return RoomAlignment(make_pose(R, t), d_start, d_end, n)
 
 
-def _median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> float:
+def _median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> tuple[float, int]:
+    """Median point-to-plane distance (m) of the points associated under ``(R, t)``, and how many there are."""
     _, _, d = term.associate(R, t)
-    return float(np.median(np.abs(d))) if len(d) else float("nan")
+    return (float(np.median(np.abs(d))) if len(d) else float("nan")), len(d)
