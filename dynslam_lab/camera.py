@@ -141,7 +141,8 @@ class PinholeCamera:
             raise ValueError(f"backproject_depth expects an (H, W) depth image, got shape {depth.shape}")
         d = depth[::stride, ::stride].astype(np.float64)
         d = np.where(d > 0, d, np.nan)
-        v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride]
+        u = np.arange(0, depth.shape[1], stride)[None, :]
+        v = np.arange(0, depth.shape[0], stride)[:, None]
         x = (u - self.cx) / self.fx * d
         y = (v - self.cy) / self.fy * d
         return np.stack([x, y, d], axis=-1)

@@ -67,27 +67,30 @@ def vertex_normal_grid(depth: np.ndarray, camera: PinholeCamera, stride: int, ma
     if step < 1:
         raise ValueError(f"vertex_normal_grid: step must be >= 1, got {step}")
     V = camera.backproject_depth(depth, stride)
-    z = V[..., 2]
+    h, w = V.shape[:2]
     N = np.full_like(V, np.nan)
     k = int(step)
-    h, w = z.shape
     if h <= 2 * k or w <= 2 * k:
         return DepthGrid(V, N, int(stride))
-    c = (slice(k, h - k), slice(k, w - k))
-    right, left = V[k : h - k, 2 * k :], V[k : h - k, : w - 2 * k]
-    down, up = V[2 * k :, k : w - k], V[: h - 2 * k, k : w - k]
-    n = np.cross(right - left, down - up)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
-    zc = z[c]
-    jump = np.maximum.reduce([np.abs(right[..., 2] - zc), np.abs(left[..., 2] - zc), np.abs(down[..., 2] - zc),
-                              np.abs(up[..., 2] - zc)]) / zc
+    # one (h - 2k, w - 2k) array per coordinate: contiguous arithmetic, twice as fast as on (h, w, 3) slices
+    x, y, z = V[..., 0], V[..., 1], V[..., 2]
+    rows, cols = slice(k, h - k), slice(k, w - k)
+    right, left = (rows, slice(2 * k, None)), (rows, slice(None, w - 2 * k))
+    down, up = (slice(2 * k, None), cols), (slice(None, h - 2 * k), cols)
+    ax, ay, az = x[right] - x[left], y[right] - y[left], z[right] - z[left]
+    bx, by, bz = x[down] - x[up], y[down] - y[up], z[down] - z[up]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    zc = z[rows, cols]
+    jump = np.maximum(np.maximum(np.abs(z[right] - zc), np.abs(z[left] - zc)),
+                      np.maximum(np.abs(z[down] - zc), np.abs(z[up] - zc))) / zc
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = n / norm
-        ok = (jump <= max_jump * k) & (norm[..., 0] > 0)
-    n = np.where(ok[..., None], n, np.nan)
-    flip = np.einsum("ijk,ijk->ij", n, V[c]) > 0
-    n[flip] *= -1.0
-    N[c] = n
+        ok = (jump <= max_jump * k) & (norm > 0)
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        # -1 turns a normal facing away from the camera; nan where unknown
+        sign = np.where(ok, np.where(nx * x[rows, cols] + ny * y[rows, cols] + nz * zc > 0, -1.0, 1.0), np.nan)
+    n = N[rows, cols]
+    n[..., 0], n[..., 1], n[..., 2] = nx * sign, ny * sign, nz * sign
     return DepthGrid(V, N, int(stride))
 
 
