@@ -35,11 +35,13 @@
 
 # %%
 import dataclasses
+from types import SimpleNamespace
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 from dynslam_lab.datasets import TumSequence
+from dynslam_lab.dynamic.history import reduce_depth
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.features.orb import OrbConfig, extract_features
 from dynslam_lab.geometry.align import umeyama_alignment
@@ -47,7 +49,8 @@ from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp,
 from dynslam_lab.slam.frame import keypoint_depths
 from dynslam_lab.slam.keyframe_database import KeyframeDatabase
 from dynslam_lab.slam.loop_closing import LoopClosingConfig, verify_loop
-from dynslam_lab.slam.optimize import Observations, pose_uncertainty
+from dynslam_lab.slam.loop_closing.verification import dense_loop_pose
+from dynslam_lab.slam.optimize import Observations, optimize_pose, pose_uncertainty
 from dynslam_lab.slam.pose_graph import optimize_pose_graph
 from dynslam_lab.slam.tracking import TrackingConfig
 from dynslam_lab.slam.vocabulary import bow_score, bow_score_many, default_vocabulary
@@ -272,6 +275,42 @@ for label, zmin in (("all inliers", 0.0), ("inliers beyond 2.2 m", 2.2)):
 # **What to look for**: all the inliers (the room from 1 to 4 m) fix the camera centre to a few
 # millimetres; the far ones alone, a quarter of them, leave it about three times less certain, at the
 # bound: a loop seen only that way would wait for a better view of the revisit.
+
+# %% [markdown]
+# **The loop pose refined with depth.** Once a loop passes every check, the loop closer refines its pose
+# on the map matches and the query's whole depth image together (`dense_loop_pose`: motion-only BA plus
+# the point-to-plane residuals of the query's depth, reduced 8x, against the loop keyframe's; Chen and
+# Medioni 1992, Newcombe et al. 2011). The walls and the floor at every angle fix the turn that far
+# matches leave open. Here the loop pose from the inliers (all of them, and the far ones only), then
+# with the depth, against the ground truth (the candidate's camera is the world here):
+
+# %%
+def loop_pose_errors(min_depth):
+    a, b = kfs[q], kfs[1]
+    ok = ver.inliers & (a["pts"][ver.idx_q, 2] > min_depth)
+    iq, ic = ver.idx_q[ok], ver.idx_c[ok]
+    obs = Observations.from_keypoints(a["feats"].uv[iq], a["pts"][iq, 2], a["feats"].octave[iq], BF, orb.scale_factor)
+    cam = a["frame"].camera
+    T_feat, _ = optimize_pose(ver.T_q_c, b["pts"][ic], obs, cam, BF)
+    keep = lambda fr, T_w_c: SimpleNamespace(depth_small=reduce_depth(fr.depth, cfg.dense_factor), T_w_c=T_w_c, T_c_w=se3_inv(T_w_c))
+    T_both = dense_loop_pose(keep(a["frame"], se3_inv(T_feat)), keep(b["frame"], np.eye(4)), T_feat, b["pts"][ic], obs, cam, BF)
+    return int(ok.sum()), [pose_error(T, T_true) for T in (T_feat, T_both)]
+
+
+def pose_error(T, T_ref):
+    D = T @ se3_inv(T_ref)
+    return 1000 * np.linalg.norm(se3_inv(T)[:3, 3] - se3_inv(T_ref)[:3, 3]), np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+
+
+for label, zmin in (("all inliers", 0.0), ("inliers beyond 2.2 m", 2.2)):
+    n, ((cf, rf), (cb, rb)) = loop_pose_errors(zmin)
+    print(f"{label} ({n}): features {cf:.1f} mm / {rf:.3f} deg -> with depth {cb:.1f} mm / {rb:.3f} deg")
+
+# %% [markdown]
+# **What to look for**: with all the inliers the matches already fix the pose, and the depth keeps it
+# there; with the far ones only, the depth brings the turn back. On the plain room `loop_flat`
+# (docs/loop_closing.md, "The loop pose refined with depth") the accepted loops' poses went from
+# 9-13 mm / 0.1-0.16 deg off to 2-3.5 mm / 0.03-0.05 deg.
 
 # %% [markdown]
 # ## 4. Pose graph optimisation

@@ -33,16 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import PinholeCamera
-from ..geometry.depth_alignment import DenseTerm, DepthGrid, vertex_normal_grid
-from ..geometry.se3 import make_pose, so3_exp
+from ..geometry.depth_alignment import DenseAlignment, DenseTerm, DepthGrid, align_depth, depth_sigma, vertex_normal_grid
 
 __all__ = ["RoomDepth", "RoomAlignment", "room_labels", "room_points", "reference_grid", "align_room", "depth_sigma"]
 
-
-def depth_sigma(z: np.ndarray) -> np.ndarray:
-    """Standard deviation (m) of a Kinect-like depth measurement at ``z`` m: 1 mm + 2 mm per m^2 (the
-    quadratic growth of a disparity sensor's error, Khoshelham and Elberink 2012, rounded)."""
-    return 0.001 + 0.002 * z * z
+RoomAlignment = DenseAlignment  # the result of align_room (geometry.depth_alignment.align_depth)
 
 
 @dataclass
@@ -59,17 +54,6 @@ class RoomDepth:
     ref: DepthGrid
     T_r_w: np.ndarray
     camera: PinholeCamera
-
-
-@dataclass(frozen=True)
-class RoomAlignment:
-    """Result of :func:`align_room`: the aligned ``T_c_w``, the median point-to-plane distance (m) of the
-    associated points at the start and at the end, and how many points were associated at the end."""
-
-    T_c_w: np.ndarray
-    d_start: float
-    d_end: float
-    n: int
 
 
 def room_labels(small_depth: np.ndarray, cells: np.ndarray, min_share: float, labels: np.ndarray | None = None,
@@ -121,27 +105,5 @@ def align_room(room: RoomDepth, T_start: np.ndarray, iterations: int = 8, huber:
         return RoomAlignment(T_start.copy(), float("nan"), float("nan"), 0)
     term = DenseTerm(room.X, depth_sigma(room.X[:, 2]), room.ref, room.T_r_w, room.camera, max_distance=max_distance,
                      T_prior=T_start, prior_sigma=(prior_m, prior_deg))
-    R, t = T_start[:3, :3].copy(), T_start[:3, 3].copy()
-    d_start, _ = _median_distance(term, R, t)
-    for _ in range(iterations):
-        e, J, _ = term.residuals(R, t)
-        a = np.abs(e)
-        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
-        H = J.T @ (J * w[:, None])
-        g = J.T @ (w * e)
-        try:
-            step = -np.linalg.solve(H, g)
-        except np.linalg.LinAlgError:
-            break
-        R = so3_exp(step[:3]) @ R
-        t = t + step[3:]
-        if np.linalg.norm(step[:3]) < tol_rad and np.linalg.norm(step[3:]) < tol_m:
-            break
-    d_end, n = _median_distance(term, R, t)
-    return RoomAlignment(make_pose(R, t), d_start, d_end, n)
+    return align_depth(term, T_start, iterations, huber, tol_rad, tol_m)
 
-
-def _median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> tuple[float, int]:
-    """Median point-to-plane distance (m) of the points associated under ``(R, t)``, and how many there are."""
-    _, _, d = term.associate(R, t)
-    return (float(np.median(np.abs(d))) if len(d) else float("nan")), len(d)

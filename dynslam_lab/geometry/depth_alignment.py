@@ -42,9 +42,10 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
-from .se3 import skew, so3_log
+from .se3 import make_pose, skew, so3_exp, so3_log
 
-__all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model"]
+__all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
+           "DenseAlignment", "align_depth"]
 
 
 @dataclass
@@ -277,3 +278,51 @@ class DenseTerm:
         J[3:, :3] = skew(q) / s_t
         J[3:, 3:] = np.eye(3) / s_t
         return e, J
+
+
+def depth_sigma(z: np.ndarray) -> np.ndarray:
+    """Standard deviation (m) of a Kinect-like depth measurement at ``z`` m: 1 mm + 2 mm per m^2 (the
+    quadratic growth of a disparity sensor's error, Khoshelham and Elberink 2012, rounded)."""
+    return 0.001 + 0.002 * z * z
+
+
+@dataclass
+class DenseAlignment:
+    """Result of :func:`align_depth`: the aligned ``T_c_w``, the median point-to-plane distance (m) of the
+    associated points at the start and at the end, and how many points were associated at the end."""
+
+    T_c_w: np.ndarray
+    d_start: float
+    d_end: float
+    n: int
+
+
+def median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> tuple[float, int]:
+    """Median point-to-plane distance (m) of the points associated under ``(R, t)``, and how many there are."""
+    _, _, d = term.associate(R, t)
+    return (float(np.median(np.abs(d))) if len(d) else float("nan")), len(d)
+
+
+def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber: float = 2.0,
+                tol_rad: float = 1e-5, tol_m: float = 1e-4) -> DenseAlignment:
+    """Gauss-Newton on ``term`` (point-to-plane, and its prior when it has one) from ``T_start`` (world ->
+    camera), each residual Huber-weighted at ``huber`` (whitened units). At most ``iterations`` steps, fewer
+    once a step turns the camera by less than ``tol_rad`` and moves it by less than ``tol_m``."""
+    R, t = T_start[:3, :3].copy(), T_start[:3, 3].copy()
+    d_start, _ = median_distance(term, R, t)
+    for _ in range(iterations):
+        e, J, _ = term.residuals(R, t)
+        a = np.abs(e)
+        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+        H = J.T @ (J * w[:, None])
+        g = J.T @ (w * e)
+        try:
+            step = -np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            break
+        R = so3_exp(step[:3]) @ R
+        t = t + step[3:]
+        if np.linalg.norm(step[:3]) < tol_rad and np.linalg.norm(step[3:]) < tol_m:
+            break
+    d_end, n = median_distance(term, R, t)
+    return DenseAlignment(make_pose(R, t), d_start, d_end, n)

@@ -150,6 +150,8 @@ class KeyFrame:
     static : ``(N,)`` bool screening verdict.
     parent_id : parent in the spanning tree (``-1`` for the first keyframe).
     thumbnail : small RGB image (for the viewer) or None.
+    depth_small : the frame's depth reduced ``LoopClosingConfig.dense_factor`` times per side (block means,
+        float32 m, 0 = none) for the loop pose's depth alignment, or None.
     bad : set when culled.
     """
 
@@ -166,6 +168,7 @@ class KeyFrame:
     static: np.ndarray
     parent_id: int = -1
     thumbnail: np.ndarray | None = None
+    depth_small: np.ndarray | None = None
     bad: bool = False
     children: set[int] = field(default_factory=set)
     loop_edges: set[int] = field(default_factory=set)

@@ -33,6 +33,7 @@ import numpy as np
 from ..camera import PinholeCamera
 from ..datasets.frame import Frame
 from ..dynamic.context import ScreeningContext
+from ..dynamic.history import reduce_depth
 from ..evaluation.trajectory import Trajectory
 from ..features.orb import Features, extract_features
 from ..geometry.se3 import se3_inv, transform_points
@@ -383,11 +384,19 @@ class System:
         return ScreeningContext(T_pred, poses, ids, self.map.xyz[ids], self.map.descriptors[ids], feats.descriptors, feats.octave,
                                 self.config.orb.scale_factor)
 
-    def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False) -> tuple[KeyFrame, np.ndarray]:
+    def _new_keyframe(self, sf: SlamFrame, frame: Frame, all_points: bool = False,
+                      region: np.ndarray | None = None) -> tuple[KeyFrame, np.ndarray]:
         """Insert a keyframe made from ``sf`` with new points from depth (all of them at the
-        initialisation, as ORB-SLAM2's ``StereoInitialization``; else close ones first)."""
+        initialisation, as ORB-SLAM2's ``StereoInitialization``; else close ones first). ``region``: the
+        frame's screened dynamic region ``(H, W)`` bool, left out of the depth the keyframe keeps."""
         thumb = cv2.resize(frame.rgb, (160, 120), interpolation=cv2.INTER_AREA)
         kf = KeyFrame.from_frame(self.map.new_keyframe_id(), sf, thumbnail=thumb)
+        lc = self.loop_closer.config if self.loop_closer is not None else None
+        if lc is not None and lc.enabled and lc.dense_factor > 0 and frame.depth is not None:
+            depth = frame.depth
+            if region is not None and region.shape == depth.shape and region.any():
+                depth = np.where(region, 0.0, depth)  # movers are no evidence of the place
+            kf.depth_small = reduce_depth(depth, lc.dense_factor)  # the loop pose's depth alignment
         self.map.add_keyframe(kf)
         # far points only while the screening judges the scene static (Tracker.scene_static; ours)
         close = np.inf if all_points else (self.new_point_depth if self.tracker.scene_static(sf.index) else self.close_depth)
@@ -451,7 +460,7 @@ class System:
             res.method = self.tracker.method
             res.n_inliers = self.tracker.n_inliers
             if sf.T_w_c is not None and self.tracker.need_keyframe(sf):
-                kf, new_pts = self._new_keyframe(sf, frame)
+                kf, new_pts = self._new_keyframe(sf, frame, region=res.region_mask)
         t["track"] = 1e3 * (time.perf_counter() - t0)
         if kf is not None and res.method != "initialization":
             t0 = time.perf_counter()
