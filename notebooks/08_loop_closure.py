@@ -45,10 +45,11 @@ from dynslam_lab.dynamic.history import reduce_depth
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.features.orb import OrbConfig, extract_features
 from dynslam_lab.geometry.align import umeyama_alignment
-from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, transform_points
+from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, so3_log, transform_points
 from dynslam_lab.slam.frame import keypoint_depths
 from dynslam_lab.slam.keyframe_database import KeyframeDatabase
 from dynslam_lab.slam.loop_closing import LoopClosingConfig, verify_loop
+from dynslam_lab.slam.loop_closing.correction import depth_edges
 from dynslam_lab.slam.loop_closing.verification import dense_loop_pose
 from dynslam_lab.slam.optimize import Observations, optimize_pose, pose_uncertainty
 from dynslam_lab.slam.pose_graph import optimize_pose_graph
@@ -399,6 +400,39 @@ x_info = optimize_pose_graph(tri, tri_edges, tri_meas, fixed=[0], information=tr
 print("x of the poses, identity information:", np.round(x_plain, 4))
 print("x of the poses, edge 1-2 weak along x:", np.round(x_info, 4))
 assert abs(x_info[1] - 1.0) < 1e-3 and abs(x_info[2] - 2.1) < 1e-3
+
+# %% [markdown]
+# ### Edges measured by depth
+#
+# In a run an odometry edge's measurement is tracking's relative pose between its two keyframes. Across a
+# plain wall tracked by depth frame to frame it carries the drift of every frame. So the loop closer
+# measures each odometry edge again (`depth_edges`, `pose_graph.dense_scale`): the second keyframe's
+# depth, reduced 8x, aligned point-to-plane to the first's, from the edge's measurement. The aligned pose
+# replaces it, and the alignment's information is added to the edge's. Here, keyframes 2 and 3 of this
+# sequence, with their edge spoilt by a turn and a shift of the size tracking drifts on a wall:
+
+# %%
+def depth_edge_demo(turn_deg=0.6, shift_cm=1.5):
+    pair = [kfs[2], kfs[3]]
+    snap = SimpleNamespace(ids=np.arange(2), keyframes={k: SimpleNamespace(id=k, depth_small=reduce_depth(p["frame"].depth, cfg.dense_factor))
+                                                       for k, p in enumerate(pair)})
+    Z_true = relative_pose(pair[0]["T_gt"], pair[1]["T_gt"])
+    Z = (Z_true @ make_pose(so3_exp(np.radians([0.0, turn_deg, 0.0])), np.array([shift_cm / 100, 0.0, 0.0])))[None]
+    err = lambda T: (1000 * np.linalg.norm(T[:3, 3] - Z_true[:3, 3]), np.degrees(np.linalg.norm(so3_log(T[:3, :3] @ Z_true[:3, :3].T))))
+    before = err(Z[0])
+    info = np.tile(np.eye(6), (1, 1, 1))
+    depth_edges(snap, np.array([[0, 1]]), Z, info, None, pair[0]["frame"].camera, cfg.pose_graph)
+    return before, err(Z[0])
+
+
+(b_mm, b_deg), (a_mm, a_deg) = depth_edge_demo()
+print(f"edge 2-3: tracking's measurement spoilt to {b_mm:.1f} mm / {b_deg:.2f} deg; measured by depth {a_mm:.1f} mm / {a_deg:.3f} deg")
+
+# %% [markdown]
+# **What to look for**: the depth brings the edge back to a fraction of a millimetre and about 0.05 deg (the
+# office shows several planes at every view). On the plain room
+# `loop_flat` this took the worst of eight seeds from 23.6 to 18.6 mm after loop closure
+# (docs/loop_closing.md, "Odometry edges measured by depth").
 
 # %% [markdown]
 # ### Exercise 1: the L1 score by hand

@@ -66,6 +66,8 @@ class PoseGraphConfig:
     information: str = "points"  # each edge's information matrix: "points" (from the map points the edge's keyframes share, the loop's from its matches; loop_closing.correction.edge_information; ours, docs/loop_closing.md "Information per edge") or "identity" (ORB-SLAM2; rotation counted rotation_weight times)
     floor_rotation_deg: float = 1.0  # "points": a prior of this rotation sigma added to every edge (an edge with no shared point, tracked by depth); ours, as tracking.dense_prior_rotation_deg
     floor_translation: float = 0.02  # m, the same for the translation; ours, as tracking.dense_prior_translation
+    dense_scale: float = 0.01  # "points": every odometry edge measured by its keyframes' reduced depth too (loop_closing.dense_factor; j's depth, every other cell, aligned to i's from the edge's measurement, held to it with the floor sigmas): the aligned relative pose becomes the measurement, and this times the alignment's information is added; 0 = off; ours, docs/loop_closing.md "Odometry edges measured by depth"
+    dense_max_edges: int = 300  # at most this many edges are measured by depth per correction (~7 ms each), the weakest first (smallest eigenvalue of their information in units of the floor); bounds the worker's time on large maps; ours
     loss: str = "linear"  # robust loss on an edge's squared residual (scipy's names); ORB-SLAM2 uses none here (a robust loss would mute the loop edge)
 
     def __post_init__(self) -> None:
@@ -77,6 +79,10 @@ class PoseGraphConfig:
             raise ValueError(f"PoseGraphConfig.rotation_weight must be > 0, got {self.rotation_weight}")
         if self.information not in ("identity", "points"):
             raise ValueError(f"PoseGraphConfig.information must be 'identity' or 'points', got {self.information!r}")
+        if self.dense_max_edges < 0:
+            raise ValueError(f"PoseGraphConfig.dense_max_edges must be >= 0, got {self.dense_max_edges}")
+        if not self.dense_scale >= 0:
+            raise ValueError(f"PoseGraphConfig.dense_scale must be >= 0, got {self.dense_scale}")
         if not (self.floor_rotation_deg > 0 and self.floor_translation > 0):
             raise ValueError("PoseGraphConfig.floor_rotation_deg and floor_translation must be > 0")
         if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):

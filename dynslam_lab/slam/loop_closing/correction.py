@@ -15,7 +15,8 @@ written back and the keyframes made since are moved along the spanning tree. Our
    earlier loops) is optimised in SE(3) with the loop keyframe fixed
    (:func:`~dynslam_lab.slam.pose_graph.optimize_pose_graph`; :func:`essential_graph`), each edge
    weighted by the information of the map points its keyframes share (:func:`edge_information`, the
-   default ``pose_graph.information = "points"``; ORB-SLAM2's identity with ``"identity"``).
+   default ``pose_graph.information = "points"``; ORB-SLAM2's identity with ``"identity"``), and each
+   odometry edge measured again by aligning its keyframes' reduced depth (:func:`depth_edges`, ours).
 3. **Apply** (frame loop, between two frames, :func:`apply_correction`): each keyframe of the
    snapshot gets its correction ``D_k = T_k^new (T_k^old)^-1`` applied to its *current* pose (what
    local BA did since is kept); keyframes made since the snapshot take the correction of their
@@ -38,6 +39,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ...camera import PinholeCamera
+from ...geometry.depth_alignment import DenseTerm, align_depth, depth_sigma, reduced_depth_view
 from ...geometry.se3 import se3_inv, transform_points
 from ..local_mapping import gather_observations, replace_points
 from ..optimize import Observations, local_bundle_adjustment, pose_information
@@ -45,7 +47,7 @@ from ..pose_graph import optimize_pose_graph
 from .config import LoopClosingConfig
 from .verification import match_points_3d
 
-__all__ = ["Snapshot", "Correction", "take_snapshot", "essential_graph", "run_loop_correction", "run_global_ba",
+__all__ = ["Snapshot", "Correction", "take_snapshot", "essential_graph", "depth_edges", "run_loop_correction", "run_global_ba",
            "apply_correction", "fuse_points", "fuse_group", "LoopCorrector"]
 
 
@@ -232,6 +234,55 @@ def edge_information(snap: Snapshot, edges: np.ndarray, loop_edge: int | None, l
     return out
 
 
+def depth_edges(snap: Snapshot, edges: np.ndarray, Z: np.ndarray, info: np.ndarray, loop_edge: int | None,
+                camera: PinholeCamera, pg) -> int:
+    """Odometry edges measured by depth too (ours; in place; returns how many). For each edge ``(i, j)``
+    other than ``loop_edge`` (at most ``pg.dense_max_edges``, the weakest by ``info`` first) whose keyframes
+    kept a reduced depth (``LoopClosingConfig.dense_factor``),
+    ``j``'s depth (every other cell) is aligned point-to-plane to ``i``'s
+    (:func:`~dynslam_lab.geometry.depth_alignment.align_depth`), starting at the edge's measurement ``Z[e]``
+    and held to it with the floor sigmas (``pg.floor_translation``, ``pg.floor_rotation_deg``). When a third
+    of the points associate and their median distance does not grow, the aligned relative pose becomes the
+    measurement and ``pg.dense_scale`` times the alignment's Gauss-Newton information (in ``j``'s frame at
+    the identity, the step of :func:`~dynslam_lab.slam.optimize.pose_information`) is added to ``info[e]``.
+
+    Why: an edge's measurement is tracking's relative pose. Across a plain wall tracked by depth frame to
+    frame it carries the drift of every frame; one alignment keyframe to keyframe carries one, and its
+    information says which directions the depth fixes (a wall: the shift along its normal and two turns)
+    and which it leaves to the features and the floor. The information alone, with tracking's
+    measurements, made ``loop_flat`` worse at every scale (docs/loop_closing.md, "Odometry edges measured
+    by depth")."""
+    kfs = [snap.keyframes[int(k)] for k in snap.ids.tolist()]
+    views: dict = {}  # keyframe id -> (grid camera, vertex/normal grid, points every other cell)
+    done = 0
+    edges = np.asarray(edges)
+    # the weakest edges first: smallest eigenvalue of the information in units of the floor (1 = the floor alone)
+    f = np.array([np.radians(pg.floor_rotation_deg)] * 3 + [pg.floor_translation] * 3)
+    weakest = np.linalg.eigvalsh(info * f[:, None] * f[None, :])[:, 0] if len(edges) else np.zeros(0)
+    for e in np.argsort(weakest, kind="stable")[: pg.dense_max_edges].tolist():
+        i, j = edges[e].tolist()
+        a, b = kfs[i], kfs[j]
+        if e == loop_edge or a.depth_small is None or b.depth_small is None or a.depth_small.shape != b.depth_small.shape:
+            continue
+        for kf in (a, b):
+            if kf.id not in views:
+                views[kf.id] = reduced_depth_view(kf.depth_small, camera, 2)
+        cam, X = views[b.id][0], views[b.id][2]
+        if len(X) < 100:
+            continue
+        T_j_i = se3_inv(Z[e])
+        term = DenseTerm(X, depth_sigma(X[:, 2]), views[a.id][1], np.eye(4), cam, max_distance=0.05, T_prior=T_j_i,
+                         prior_sigma=(pg.floor_translation, pg.floor_rotation_deg))
+        res = align_depth(term, T_j_i)
+        if not (res.n >= len(X) / 3 and res.d_end <= res.d_start):
+            continue
+        Z[e] = se3_inv(res.T_c_w)
+        _, J, _ = DenseTerm(X, term.sigma, views[a.id][1], Z[e], cam, max_distance=0.05).residuals(np.eye(3), np.zeros(3))
+        info[e] += pg.dense_scale * (J.T @ J)
+        done += 1
+    return done
+
+
 def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarray, current_group: list[int],
                         loop_group: list[int], loop_pids: np.ndarray, query_kp: np.ndarray,
                         config: LoopClosingConfig, camera: PinholeCamera | None = None,
@@ -257,6 +308,7 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
             ip, ik = match_points_3d(X_k, snap.descriptors[li], pts_k, kf.descriptors, config.inlier_abs, config.inlier_rel)
             fuse.append((int(k), ik, lp[ip]))
     info = None
+    n_depth = 0
     if config.pose_graph.information == "points":
         if camera is None or bf is None:
             raise ValueError("run_loop_correction: pose_graph.information = 'points' needs the camera and bf")
@@ -267,8 +319,10 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
         prow = np.searchsorted(snap.points, np.asarray(loop_pids, np.int64))
         ok = (prow < len(snap.points)) & (snap.points[np.minimum(prow, len(snap.points) - 1)] == loop_pids)
         q = snap.keyframes[int(query_id)]
-        info = edge_information(snap, edges, 0 if len(edges) and query_id in index and loop_id in index else None,
-                                (q, loop_kp[ok], prow[ok]), T_init, camera, bf, config)
+        loop_edge = 0 if len(edges) and query_id in index and loop_id in index else None
+        info = edge_information(snap, edges, loop_edge, (q, loop_kp[ok], prow[ok]), T_init, camera, bf, config)
+        if config.pose_graph.dense_scale > 0:
+            n_depth = depth_edges(snap, edges, Z, info, loop_edge, camera, config.pose_graph)
     else:
         edges, Z, w = essential_graph(snap, T_init, group, loop_group, config)
     if len(edges) == 0:
@@ -277,7 +331,7 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
         T_new = optimize_pose_graph(T_init, edges, Z, fixed=[index[loop_id]], weights=w, config=config.pose_graph,
                                     information=info).poses
     return Correction(snap.ids, snap.T_w_c, T_new, fuse=fuse, loop_edge=(int(loop_id), int(query_id)),
-                      stats={"edges": int(len(edges)), "keyframes": int(len(snap.ids))})
+                      stats={"edges": int(len(edges)), "depth_edges": int(n_depth), "keyframes": int(len(snap.ids))})
 
 
 def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf: float, iterations: int,

@@ -54,7 +54,7 @@ from scipy.spatial import cKDTree
 from ...camera import PinholeCamera
 from ...features.matching import TH_LOW, hamming_pairs, match_descriptors
 from ...geometry.align import ransac_rigid_3d
-from ...geometry.depth_alignment import DenseTerm, depth_sigma, median_distance, vertex_normal_grid
+from ...geometry.depth_alignment import DenseTerm, depth_sigma, median_distance, reduced_depth_view, vertex_normal_grid
 from ...geometry.se3 import se3_inv, transform_points
 from ..optimize import Observations, optimize_pose, pose_uncertainty
 from .config import LoopClosingConfig
@@ -273,9 +273,7 @@ def dense_loop_pose(kf, cand, T_q_w: np.ndarray, X_w: np.ndarray, obs: Observati
     refined with depth")."""
     if kf.depth_small is None or cand.depth_small is None or kf.depth_small.shape != cand.depth_small.shape:
         return T_q_w
-    cam = camera.scaled(kf.depth_small.shape[1] / camera.width)
-    X = cam.backproject_depth(kf.depth_small).reshape(-1, 3)
-    X = X[np.isfinite(X[:, 2])]
+    cam, _, X = reduced_depth_view(kf.depth_small, camera)
     if len(X) < 100:
         return T_q_w
     term = DenseTerm(X, depth_sigma(X[:, 2]), vertex_normal_grid(cand.depth_small, cam, 1), cand.T_c_w, cam,
