@@ -45,7 +45,7 @@ from dynslam_lab.dynamic.history import reduce_depth
 from dynslam_lab.datasets.synthetic import synthetic_sequence
 from dynslam_lab.features.orb import OrbConfig, extract_features
 from dynslam_lab.geometry.align import umeyama_alignment
-from dynslam_lab.geometry.se3 import make_pose, relative_pose, se3_inv, so3_exp, so3_log, transform_points
+from dynslam_lab.geometry.se3 import make_pose, relative_pose, rotation_angle_deg, se3_inv, so3_exp, transform_points
 from dynslam_lab.slam.frame import keypoint_depths
 from dynslam_lab.slam.keyframe_database import KeyframeDatabase
 from dynslam_lab.slam.loop_closing import LoopClosingConfig, verify_loop
@@ -300,7 +300,7 @@ def loop_pose_errors(min_depth):
 
 def pose_error(T, T_ref):
     D = T @ se3_inv(T_ref)
-    return 1000 * np.linalg.norm(se3_inv(T)[:3, 3] - se3_inv(T_ref)[:3, 3]), np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+    return 1000 * np.linalg.norm(se3_inv(T)[:3, 3] - se3_inv(T_ref)[:3, 3]), rotation_angle_deg(D[:3, :3])
 
 
 for label, zmin in (("all inliers", 0.0), ("inliers beyond 2.2 m", 2.2)):
@@ -418,7 +418,7 @@ def depth_edge_demo(turn_deg=0.6, shift_cm=1.5):
                                                        for k, p in enumerate(pair)})
     Z_true = relative_pose(pair[0]["T_gt"], pair[1]["T_gt"])
     Z = (Z_true @ make_pose(so3_exp(np.radians([0.0, turn_deg, 0.0])), np.array([shift_cm / 100, 0.0, 0.0])))[None]
-    err = lambda T: (1000 * np.linalg.norm(T[:3, 3] - Z_true[:3, 3]), np.degrees(np.linalg.norm(so3_log(T[:3, :3] @ Z_true[:3, :3].T))))
+    err = lambda T: (1000 * np.linalg.norm(T[:3, 3] - Z_true[:3, 3]), rotation_angle_deg(T[:3, :3] @ Z_true[:3, :3].T))
     before = err(Z[0])
     info = np.tile(np.eye(6), (1, 1, 1))
     depth_edges(snap, np.array([[0, 1]]), Z, info, None, pair[0]["frame"].camera, cfg.pose_graph)

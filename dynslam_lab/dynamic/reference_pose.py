@@ -60,7 +60,7 @@ import cv2
 import numpy as np
 
 from ..features.matching import search_by_projection
-from ..geometry.se3 import se3_inv, transform_points
+from ..geometry.se3 import rotation_angle_deg, se3_inv, transform_points
 from .room_depth import RoomDepth, align_room
 
 __all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "moving_surfaces",
@@ -327,8 +327,7 @@ def match_map_points(context, uv: np.ndarray, camera, config: ReferencePoseConfi
 
 def _correction_ok(T_a: np.ndarray, T_b: np.ndarray, config: ReferencePoseConfig) -> bool:
     D = T_a @ se3_inv(T_b)
-    ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1.0, 1.0)))
-    return bool(np.linalg.norm(D[:3, 3]) <= config.max_correction_m and ang <= config.max_correction_deg)
+    return bool(np.linalg.norm(D[:3, 3]) <= config.max_correction_m and rotation_angle_deg(D[:3, :3]) <= config.max_correction_deg)
 
 
 def _pose_gap_px(T_a: np.ndarray, T_b: np.ndarray, X_w: np.ndarray, K: np.ndarray) -> float:

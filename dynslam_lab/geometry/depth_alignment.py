@@ -45,7 +45,7 @@ from ..camera import PinholeCamera
 from .se3 import make_pose, skew, so3_exp, so3_log
 
 __all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
-           "DenseAlignment", "align_depth", "reduced_depth_view"]
+           "DenseAlignment", "align_depth", "reduced_depth_points"]
 
 
 @dataclass
@@ -328,10 +328,10 @@ def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber
     return DenseAlignment(make_pose(R, t), d_start, d_end, n)
 
 
-def reduced_depth_view(depth_small: np.ndarray, camera: PinholeCamera, step: int = 1) -> tuple[PinholeCamera, DepthGrid, np.ndarray]:
+def reduced_depth_points(depth_small: np.ndarray, camera: PinholeCamera, step: int = 1) -> tuple[PinholeCamera, np.ndarray]:
     """A depth image reduced from ``camera``'s resolution (``depth_small (h, w)``, m, 0 = none) as the dense
-    alignments use it: the reduced grid's camera, its vertices and normals (as a reference), and its camera
-    points with depth, every ``step``-th cell in both directions (as the points aligned), ``(K, 3)``."""
+    alignments align it: the reduced grid's camera (as a reference, ``vertex_normal_grid(depth_small, cam, 1)``)
+    and its camera points with depth, every ``step``-th cell in both directions, ``(K, 3)``."""
     cam = camera.scaled(depth_small.shape[1] / camera.width)
     X = cam.backproject_depth(depth_small)[::step, ::step].reshape(-1, 3)
-    return cam, vertex_normal_grid(depth_small, cam, 1), X[np.isfinite(X[:, 2])]
+    return cam, X[np.isfinite(X[:, 2])]

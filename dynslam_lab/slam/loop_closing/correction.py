@@ -39,7 +39,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ...camera import PinholeCamera
-from ...geometry.depth_alignment import DenseTerm, align_depth, depth_sigma, reduced_depth_view
+from ...geometry.depth_alignment import DenseTerm, align_depth, depth_sigma, reduced_depth_points, vertex_normal_grid
 from ...geometry.se3 import se3_inv, transform_points
 from ..local_mapping import gather_observations, replace_points
 from ..optimize import Observations, local_bundle_adjustment, pose_information
@@ -266,7 +266,8 @@ def depth_edges(snap: Snapshot, edges: np.ndarray, Z: np.ndarray, info: np.ndarr
             continue
         for kf in (a, b):
             if kf.id not in views:
-                views[kf.id] = reduced_depth_view(kf.depth_small, camera, 2)
+                cam, X = reduced_depth_points(kf.depth_small, camera, 2)
+                views[kf.id] = (cam, vertex_normal_grid(kf.depth_small, cam, 1), X)
         cam, X = views[b.id][0], views[b.id][2]
         if len(X) < 100:
             continue

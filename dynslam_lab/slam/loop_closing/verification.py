@@ -54,8 +54,8 @@ from scipy.spatial import cKDTree
 from ...camera import PinholeCamera
 from ...features.matching import TH_LOW, hamming_pairs, match_descriptors
 from ...geometry.align import ransac_rigid_3d
-from ...geometry.depth_alignment import DenseTerm, depth_sigma, median_distance, reduced_depth_view, vertex_normal_grid
-from ...geometry.se3 import se3_inv, transform_points
+from ...geometry.depth_alignment import DenseTerm, depth_sigma, median_distance, reduced_depth_points, vertex_normal_grid
+from ...geometry.se3 import rotation_angle_deg, se3_inv, transform_points
 from ..optimize import Observations, optimize_pose, pose_uncertainty
 from .config import LoopClosingConfig
 
@@ -273,7 +273,7 @@ def dense_loop_pose(kf, cand, T_q_w: np.ndarray, X_w: np.ndarray, obs: Observati
     refined with depth")."""
     if kf.depth_small is None or cand.depth_small is None or kf.depth_small.shape != cand.depth_small.shape:
         return T_q_w
-    cam, _, X = reduced_depth_view(kf.depth_small, camera)
+    cam, X = reduced_depth_points(kf.depth_small, camera)
     if len(X) < 100:
         return T_q_w
     term = DenseTerm(X, depth_sigma(X[:, 2]), vertex_normal_grid(cand.depth_small, cam, 1), cand.T_c_w, cam,
@@ -286,7 +286,7 @@ def dense_loop_pose(kf, cand, T_q_w: np.ndarray, X_w: np.ndarray, obs: Observati
     D = T_new @ se3_inv(T_q_w)
     if stats is not None:
         stats.update(dense_m=float(np.linalg.norm(se3_inv(D)[:3, 3])),
-                     dense_deg=float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))),
+                     dense_deg=float(rotation_angle_deg(D[:3, :3])),
                      dense_d_start=d_start, dense_d_end=d_end)
     return T_new
 
