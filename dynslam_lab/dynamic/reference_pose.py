@@ -46,7 +46,9 @@ and the fallbacks are ours):
    room's large surfaces are aligned by their depth to an earlier frame's (point-to-plane): where that shows
    the features were pulled (the room's depth fits much better, the room's own map points agree) and names
    the surfaces that pulled them, those are movers and the aligned pose starts step 3b. Two movers that move
-   together hold each other up when left out one at a time; the depth does not trade a shift for a turn.
+   together hold each other up when left out one at a time; the depth does not trade a shift for a turn. The
+   room leaves out objects standing in it that carry more than their share of the keypoints, and the room's own
+   map matches join the alignment (they fix the slide along a wall and the floor that two planes leave free).
 4. **Fallbacks.** Fewer than ``min_inliers`` matches: the prediction itself when there is one
    (``source="prediction"``); no prediction either: the two-frame rough pose of the multi-view
    check (``source="two_frame"``, RANSAC, the papers' way), or none.
@@ -61,6 +63,7 @@ import numpy as np
 
 from ..features.matching import search_by_projection
 from ..geometry.se3 import rotation_angle_deg, se3_inv, transform_points
+from ..geometry.depth_alignment import ReprojectionTerm
 from .room_depth import RoomDepth, align_room
 
 __all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "moving_surfaces",
@@ -94,6 +97,8 @@ class ReferencePoseConfig:
     dominant_room_min_matches: int = 50  # ... when the room holds at least this many matches (refined alone on 15-39, a room of one or two surfaces fits itself better than any other pose: door_static); ours
     room_depth_gain: float = 1.5  # step 3c: the room's depth, aligned to an earlier frame's from the feature pose, lowers its median point-to-plane distance this many times (the features were pulled; 0 = off); ours
     room_depth_min_share: float = 0.1  # ... the room: surfaces holding at least this share of the reduced grid's depth cells; ours
+    room_depth_feature_weight: float = 1.0  # ... the room's own map matches join the depth's alignment with this weight on their squared whitened errors (they fix the slide along a wall and the floor the planes leave free; 0 = depth alone); ours
+    room_depth_max_front: float = 0.75  # ... less objects standing in it: in front of their neighbours along more than this share of their depth-step outline and holding a larger share of the keypoints than of the depth cells (the features' likeliest puller is no witness against them; 1 = off); ours
     room_depth_min_m: float = 0.001  # ... and the distance before the alignment is at least this (m: a pose the depth noise cannot tell from the aligned one is not pulled); ours
     room_depth_min_points: int = 200  # ... aligned on at least this many associated depth cells, else no test; ours
     room_depth_min_matches: int = 5  # ... a surface off the room whose matches (at least this many) miss the aligned pose moved; ours
@@ -136,6 +141,10 @@ class ReferencePoseConfig:
                              f"room_depth_min_matches >= 1 required, got {self.room_depth_gain}, {self.room_depth_min_m}, "
                              f"{self.room_depth_min_share}, {self.room_depth_miss}, {self.room_depth_pull}, "
                              f"{self.room_depth_min_points}, {self.room_depth_min_matches}")
+        if not self.room_depth_feature_weight >= 0:
+            raise ValueError(f"ReferencePoseConfig.room_depth_feature_weight must be >= 0 (0 = depth alone), got {self.room_depth_feature_weight}")
+        if not 0 <= self.room_depth_max_front <= 1:
+            raise ValueError(f"ReferencePoseConfig.room_depth_max_front must be in [0, 1] (1 = off), got {self.room_depth_max_front}")
         if self.min_inliers < 6:
             raise ValueError(f"ReferencePoseConfig.min_inliers must be >= 6 (a pose has 6 unknowns), got {self.min_inliers}")
 
@@ -504,7 +513,9 @@ def depth_moved_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: 
     on_room = matched & in_room
     if on_room.sum() < config.segment_min_matches:
         return none
-    a = align_room(room, T_c_w)
+    w = config.room_depth_feature_weight
+    feats = ReprojectionTerm(X_w[on_room], uv[on_room], K, sigma[on_room] / np.sqrt(w)) if w > 0 else None
+    a = align_room(room, T_c_w, features=feats)
     if a.n < config.room_depth_min_points or not a.d_start >= max(config.room_depth_gain * a.d_end, config.room_depth_min_m):
         return none
     e = _reprojection_px(a.T_c_w, X_w, uv, K) / sigma

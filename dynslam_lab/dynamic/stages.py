@@ -210,7 +210,8 @@ class FrameWork:
         # a surface lying mostly inside the previous frame's dynamic region is a mover, not the room (the
         # temporal prior; the share of TemporalConfig.hold_overlap)
         ids = room_labels(self.small_depth, self._cache["surface_cells"], cfg.room_depth_min_share, grid_labels,
-                          self.prev.region if self.prev is not None else None, self.config.temporal.hold_overlap)
+                          self.prev.region if self.prev is not None else None, self.config.temporal.hold_overlap,
+                          cfg.room_depth_max_front, self.config.regions.continuity_rel, self.surfaces())
         X = room_points(self.small_depth, grid_labels, ids, cam)
         grid = _cached(past, "normal_grid", lambda: reference_grid(_past_small_depth(past, f), cam))
         return RoomDepth(X, grid, se3_inv(past.T_w_c), cam), ids

@@ -280,6 +280,44 @@ class DenseTerm:
         return e, J
 
 
+@dataclass
+class ReprojectionTerm:
+    """Reprojection residuals of map points ``X_w (M, 3)`` seen at pixels ``uv (M, 2)`` (intrinsics ``K``), each
+    whitened by its keypoint's ``sigma (M,)`` px: the features that join a depth alignment
+    (:func:`align_depth`'s ``features``).
+
+    For ``T_c_w = (R, t)`` and the step of :func:`align_depth` (``R <- Exp(omega) R``, ``t <- t + tau``), the camera
+    point ``p = R X + t`` moves by ``-[R X]_x omega + tau``; the pinhole's Jacobian ``(fx / z, 0, -fx x / z^2;
+    0, fy / z, -fy y / z^2)`` carries that to the pixel."""
+
+    X_w: np.ndarray
+    uv: np.ndarray
+    K: np.ndarray
+    sigma: np.ndarray
+
+    def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals ``(2M,)`` (u and v of each point in turn) and their Jacobian ``(2M, 6)``; points
+        behind the camera are left out."""
+        RX = self.X_w @ R.T
+        p = RX + t
+        ok = p[:, 2] > 1e-6
+        RX, p, uv, s = RX[ok], p[ok], self.uv[ok], self.sigma[ok]
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        iz = 1.0 / p[:, 2]
+        x, y = p[:, 0] * iz, p[:, 1] * iz
+        e = np.stack([(fx * x + cx - uv[:, 0]) / s, (fy * y + cy - uv[:, 1]) / s], axis=1)
+        # d(pixel)/dp, whitened
+        Ju = np.stack([fx * iz, np.zeros_like(iz), -fx * x * iz], axis=1) / s[:, None]
+        Jv = np.stack([np.zeros_like(iz), fy * iz, -fy * y * iz], axis=1) / s[:, None]
+        # dp/d omega = -[R X]_x, i.e. (dp/d omega) w = w x (R X)  ->  row a: a . (w x RX) = w . (RX x a)
+        J = np.empty((len(p), 2, 6))
+        J[:, 0, :3] = np.cross(RX, Ju)
+        J[:, 1, :3] = np.cross(RX, Jv)
+        J[:, 0, 3:] = Ju
+        J[:, 1, 3:] = Jv
+        return e.reshape(-1), J.reshape(-1, 6)
+
+
 def depth_sigma(z: np.ndarray) -> np.ndarray:
     """Standard deviation (m) of a Kinect-like depth measurement at ``z`` m: 1 mm + 2 mm per m^2 (the
     quadratic growth of a disparity sensor's error, Khoshelham and Elberink 2012, rounded)."""
@@ -304,14 +342,19 @@ def median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> tuple[floa
 
 
 def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber: float = 2.0,
-                tol_rad: float = 1e-5, tol_m: float = 1e-4) -> DenseAlignment:
+                tol_rad: float = 1e-5, tol_m: float = 1e-4, features: ReprojectionTerm | None = None) -> DenseAlignment:
     """Gauss-Newton on ``term`` (point-to-plane, and its prior when it has one) from ``T_start`` (world ->
     camera), each residual Huber-weighted at ``huber`` (whitened units). At most ``iterations`` steps, fewer
-    once a step turns the camera by less than ``tol_rad`` and moves it by less than ``tol_m``."""
+    once a step turns the camera by less than ``tol_rad`` and moves it by less than ``tol_m``. With
+    ``features`` their reprojection residuals join the sum: the directions the planes leave free (a slide
+    along a wall and the floor) are then fixed by the features, not only by the prior."""
     R, t = T_start[:3, :3].copy(), T_start[:3, 3].copy()
     d_start, _ = median_distance(term, R, t)
     for _ in range(iterations):
         e, J, _ = term.residuals(R, t)
+        if features is not None:
+            e_f, J_f = features.residuals(R, t)
+            e, J = np.concatenate([e, e_f]), np.vstack([J, J_f])
         a = np.abs(e)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
         H = J.T @ (J * w[:, None])

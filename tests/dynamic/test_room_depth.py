@@ -10,7 +10,8 @@ import pytest
 
 from dynslam_lab.camera import PinholeCamera
 from dynslam_lab.dynamic.reference_pose import ReferencePoseConfig, depth_moved_surfaces, refine_pose
-from dynslam_lab.dynamic.room_depth import RoomDepth, align_room, reference_grid, room_labels, room_points
+from dynslam_lab.dynamic.regions import surface_segments
+from dynslam_lab.dynamic.room_depth import RoomDepth, align_room, front_share, reference_grid, room_labels, room_points
 from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp, transform_points
 
 GRID = PinholeCamera(131.25, 131.25, 79.875, 59.875, 160, 120, name="grid")  # a 640x480 Kinect reduced 4x
@@ -174,7 +175,37 @@ def test_room_labels_take_the_large_surfaces_only():
     assert room_labels(depth, cells, 0.1, labels, prior, 0.9).tolist() == [1, 2]
 
 
-@pytest.mark.parametrize("field,value", [("room_depth_gain", -1.0), ("room_depth_min_share", 0.0),
+def test_an_object_standing_in_the_room_is_not_its_shell():
+    """A large box 2 m from the camera (its face fills 20 % of the grid) in front of the ray-cast room: along its
+    whole outline it is the nearer side of a depth step, the walls and floor the farther one; the room's
+    surfaces keep it out, a box mapped at rest that starts to move would pull the room's depth with it."""
+    depth = _room_depth(T_REF)
+    box = np.zeros(depth.shape, bool)
+    box[30:80, 50:110] = True
+    depth[box] = 2.0
+    n, labels = surface_segments(depth, GRID, 0.04, 35.0)
+    cells = np.bincount(labels.ravel(), minlength=n + 1)
+    share = front_share(depth, labels, len(cells), 0.04)
+    box_label = np.bincount(labels[box]).argmax()
+    assert (labels[box] == box_label).all() and share[box_label] == 1.0
+    big = [lab for lab in np.flatnonzero(cells >= 0.1 * (depth > 0).sum()) if lab > 0]
+    shell = [lab for lab in big if lab != box_label]
+    assert len(shell) >= 2 and all(share[lab] < 0.25 for lab in shell)  # behind the box (creases count for neither)
+    assert box_label in room_labels(depth, cells, 0.1, labels).tolist()  # max_front = 1: the old rule keeps it
+    kept = room_labels(depth, cells, 0.1, labels, max_front=0.75, step_rel=0.04).tolist()
+    assert kept == shell
+    # with the keypoints' surfaces: a textured box (half the keypoints on a fifth of the cells) is left out,
+    # a plain one (a tenth of the keypoints) fixes what the walls leave free and stays
+    others = [lab for lab in range(1, n + 1) if lab != box_label]
+    textured = np.array([box_label] * 50 + others * (50 // len(others) + 1))[:100]
+    plain = np.array([box_label] * 10 + others * (90 // len(others) + 1))[:100]
+    assert room_labels(depth, cells, 0.1, labels, max_front=0.75, keypoint_labels=textured).tolist() == shell
+    assert box_label in room_labels(depth, cells, 0.1, labels, max_front=0.75, keypoint_labels=plain).tolist()
+    # a surface with no depth step on its outline (an empty room's wall) has share 0
+    assert front_share(np.ones((4, 4), np.float32), np.ones((4, 4), np.int64), 2, 0.04).tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("field,value", [("room_depth_max_front", 1.5), ("room_depth_gain", -1.0), ("room_depth_min_share", 0.0),
                                          ("room_depth_min_points", 3), ("room_depth_min_m", -0.1),
                                          ("room_depth_miss", 0.0), ("room_depth_pull", 0.5)])
 def test_room_depth_config_is_checked(field, value):

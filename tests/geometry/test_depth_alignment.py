@@ -3,13 +3,15 @@ Jacobian against finite differences, and the pose it recovers against the true o
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp
 from dynslam_lab.slam import optimize as opt
 from dynslam_lab.datasets.kinect import DepthNoise, kinect_depth, nguyen_sigma
-from dynslam_lab.geometry.depth_alignment import DenseTerm, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
+from dynslam_lab.geometry.depth_alignment import (DenseTerm, DepthSource, ReprojectionTerm, align_depth, fuse_depth_model,
+                                                 smooth_depth, vertex_normal_grid)
 from dynslam_lab.slam.optimize import Observations, optimize_pose
 
 CAM = CAMERA_PRESETS["default"]
@@ -114,6 +116,51 @@ def test_prior_residuals_match_finite_differences_and_vanish_at_the_prior():
 
     J_num = np.stack([(f(d) - f(-d)) / (2 * eps) for d in np.eye(6) * eps], axis=1)
     np.testing.assert_allclose(J, J_num, atol=2e-2 * np.abs(J_num).max())  # first order at a 0.3 deg error
+
+
+def test_reprojection_term_matches_opencv_and_finite_differences():
+    rng = np.random.default_rng(5)
+    T_c_w = make_pose(so3_exp([0.05, -0.1, 0.02]), [0.2, -0.1, 0.3])
+    X_w = se3_inv(T_c_w)[:3, :3] @ np.column_stack([rng.uniform(-1, 1, 30), rng.uniform(-1, 1, 30), rng.uniform(1, 4, 30)]).T
+    X_w = X_w.T + se3_inv(T_c_w)[:3, 3]
+    sigma = rng.choice([1.0, 1.2, 1.44], 30)
+    uv_true = cv2.projectPoints(X_w, cv2.Rodrigues(T_c_w[:3, :3])[0], T_c_w[:3, 3], CAM.K, None)[0].reshape(-1, 2)
+    uv = uv_true + rng.normal(0, 0.5, uv_true.shape)
+    term = ReprojectionTerm(X_w, uv, CAM.K, sigma)
+    R, t = T_c_w[:3, :3], T_c_w[:3, 3]
+    e, J = term.residuals(R, t)
+    np.testing.assert_allclose(e.reshape(-1, 2), (uv_true - uv) / sigma[:, None], atol=1e-9)  # OpenCV's projection
+    eps = 1e-6
+
+    def f(dx):
+        return term.residuals(opt._rodrigues(dx[:3]) @ R, t + dx[3:])[0]
+
+    J_num = np.stack([(f(d) - f(-d)) / (2 * eps) for d in np.eye(6) * eps], axis=1)
+    np.testing.assert_allclose(J, J_num, atol=1e-5 * np.abs(J_num).max())
+
+
+def test_features_fix_the_slide_the_planes_leave_free():
+    """The floor and the wall ahead only (no side wall): depth cannot see a slide along both; with a
+    dozen feature matches joined to the alignment the slide is removed, without them it stays."""
+    planes = list(PLANES)
+    try:
+        PLANES[:] = [planes[0], planes[2]]
+        T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
+        T_w_cur = make_pose(so3_exp([0.01, 0.08, -0.01]), [0.04, -0.02, 0.05])
+        term = _term(T_w_ref, T_w_cur)
+    finally:
+        PLANES[:] = planes
+    T_true = se3_inv(T_w_cur)
+    slid = make_pose(np.eye(3), T_true[:3, :3] @ np.array([0.03, 0.0, 0.0])) @ T_true  # 3 cm along the wall and the floor
+    term.T_prior, term.prior_sigma = slid, (0.05, 2.0)
+    rng = np.random.default_rng(2)
+    X_w = np.column_stack([rng.uniform(-1.0, 1.0, 12), rng.uniform(-0.8, 0.8, 12), np.full(12, 3.0)])  # on the wall
+    uv, _ = CAM.project(X_w @ T_true[:3, :3].T + T_true[:3, 3])
+    feats = ReprojectionTerm(X_w, uv, CAM.K, np.ones(12))
+    a = align_depth(term, slid)
+    assert np.linalg.norm((a.T_c_w @ T_w_cur)[:3, 3]) > 0.02  # depth alone: the slide stays
+    b = align_depth(term, slid, features=feats)
+    assert np.linalg.norm((b.T_c_w @ T_w_cur)[:3, 3]) < 0.002
 
 
 def _source(T_w_c: np.ndarray, priority: int = 0, depth: np.ndarray | None = None) -> DepthSource:
