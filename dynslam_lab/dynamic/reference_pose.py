@@ -64,6 +64,7 @@ import numpy as np
 from ..features.matching import search_by_projection
 from ..geometry.se3 import rotation_angle_deg, se3_inv, transform_points
 from ..geometry.depth_alignment import ReprojectionTerm
+from ..geometry.projection import projection_jacobian
 from .room_depth import RoomDepth, align_room
 
 __all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "moving_surfaces",
@@ -243,7 +244,7 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     m = X.shape[1]
-    J, xz, yz = _projection_jacobian(X, K)
+    J, xz, yz = projection_jacobian(X, K)
     r = np.empty(2 * m)  # residuals in px
     np.subtract(qt[0], fx * xz + cx, out=r[:m])
     np.subtract(qt[1], fy * yz + cy, out=r[m:])
@@ -258,33 +259,6 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     return Jw @ J.T, Jw @ r
 
 
-def _projection_jacobian(X: np.ndarray, K: np.ndarray):
-    """``(J (6, 2M), x/z, y/z)``: the Jacobian of the pixels of the camera points ``X (3, M)`` for a left
-    perturbation ``(omega, v)`` of the pose, the ``u`` rows of every point first, then the ``v`` rows."""
-    fx, fy = K[0, 0], K[1, 1]
-    m = X.shape[1]
-    iz = 1.0 / X[2]
-    xz, yz = X[0] * iz, X[1] * iz
-    J = np.zeros((6, 2 * m))
-    ju, jv = J[:, :m], J[:, m:]
-    xy = xz * yz
-    np.multiply(xy, -fx, out=ju[0])
-    np.multiply(xy, fy, out=jv[1])
-    t = xz * xz
-    t += 1.0
-    np.multiply(t, fx, out=ju[1])
-    t = yz * yz
-    t += 1.0
-    np.multiply(t, -fy, out=jv[0])
-    np.multiply(yz, -fx, out=ju[2])
-    np.multiply(xz, fy, out=jv[2])
-    np.multiply(iz, fx, out=ju[3])
-    np.multiply(iz, fy, out=jv[4])
-    np.multiply(xz * iz, -fx, out=ju[5])
-    np.multiply(yz * iz, -fy, out=jv[5])
-    return J, xz, yz
-
-
 def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
                   fixed: np.ndarray, judged: np.ndarray) -> float:
     """How well the matches ``fixed`` alone fix the pixels of the matches ``judged``: the median over ``judged``
@@ -295,7 +269,7 @@ def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndar
     Xj = transform_points(T_c_w, X_w[judged]).T
     if Xf.shape[1] < 6 or not (Xf[2] > 1e-6).all() or not (Xj[2] > 1e-6).all():
         return float("inf")
-    Jf, xz, yz = _projection_jacobian(Xf, K)
+    Jf, xz, yz = projection_jacobian(Xf, K)
     w = 1.0 / np.asarray(sigma[fixed], np.float64) ** 2
     H = (Jf * np.concatenate([w, w])) @ Jf.T
     # the residuals from the projections just computed (the points are not transformed again)
@@ -305,7 +279,7 @@ def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndar
         C = np.linalg.inv(H) * noise**2
     except np.linalg.LinAlgError:
         return float("inf")
-    Jj, _, _ = _projection_jacobian(Xj, K)
+    Jj, _, _ = projection_jacobian(Xj, K)
     Jj = Jj / np.tile(np.asarray(sigma[judged], np.float64), 2)
     rows = np.einsum("am,ab,bm->m", Jj, C, Jj)
     m = Xj.shape[1]

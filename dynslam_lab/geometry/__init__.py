@@ -1,6 +1,7 @@
 """Geometry shared by every stage: SE(3) poses and quaternions (:mod:`.se3`), point-set
-alignment and 3D RANSAC (:mod:`.align`), PnP-RANSAC (:mod:`.pnp`) and the epipolar distance
-(:mod:`.epipolar`)."""
+alignment and 3D RANSAC (:mod:`.align`), PnP-RANSAC (:mod:`.pnp`), the epipolar distance
+(:mod:`.epipolar`), the pinhole projection's Jacobian (:mod:`.projection`) and dense depth alignment
+(:mod:`.depth_alignment`)."""
 from .se3 import (
     make_pose,
     se3_inv,

@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 
 from ..camera import PinholeCamera
+from .projection import projection_jacobian
 from .se3 import make_pose, skew, so3_exp, so3_log
 
 __all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
@@ -215,6 +216,23 @@ class DenseTerm:
     max_distance: float = 0.05  # m; larger point-to-plane distances are no association
     T_prior: np.ndarray | None = None  # (4, 4) T_c_w the pose is weakly held to (the motion prediction), or None
     prior_sigma: tuple[float, float] = (0.02, 1.0)  # (m, deg) of that prior
+    charged: np.ndarray | None = None  # (M,) bool: the points that cost the gate when unassociated (None: all)
+
+    def in_view(self, T_c_w: np.ndarray, margin_px: float) -> np.ndarray:
+        """``(M,)`` bool: the points that ``T_c_w`` puts in front of the reference camera and at least
+        ``margin_px`` inside its image (the grid's extent)."""
+        T = self.T_r_w @ np.linalg.inv(T_c_w)
+        Y = self.X @ T[:3, :3].T + T[:3, 3]
+        z = Y[:, 2]
+        front = z > 1e-6
+        inv_z = 1.0 / np.where(front, z, 1.0)
+        u = self.camera.fx * Y[:, 0] * inv_z + self.camera.cx
+        v = self.camera.fy * Y[:, 1] * inv_z + self.camera.cy
+        h, w = self.ref.V.shape[:2]
+        s = self.ref.stride
+        # the grid's cells cover [-s/2, (w - 1/2) s) px: the image as the association's rounding sees it
+        lo, hi_u, hi_v = -0.5 * s + margin_px, (w - 0.5) * s - margin_px, (h - 0.5) * s - margin_px
+        return front & (u >= lo) & (u < hi_u) & (v >= lo) & (v < hi_v)
 
     def associate(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For the pose ``T_c_w = (R, t)``: indices of the associated points, their normals ``n`` in the
@@ -245,9 +263,10 @@ class DenseTerm:
     def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened residuals ``e (K,)`` of the associated points, their Jacobian ``(K, 6)`` in the pose
         step ``(omega, tau)`` (module docstring), and the whitened chi^2 at the gate
-        ``(max_distance / sigma)^2`` of each point left without an association."""
+        ``(max_distance / sigma)^2`` of each point left without an association (of the ``charged`` points
+        only, when set: a point the reference never saw is no evidence either way)."""
         idx, n, d = self.associate(R, t)
-        missing = np.ones(len(self.X), bool)
+        missing = np.ones(len(self.X), bool) if self.charged is None else self.charged.copy()
         missing[idx] = False
         gate = (self.max_distance / self.sigma[missing]) ** 2
         inv_s = 1.0 / self.sigma[idx]
@@ -287,8 +306,8 @@ class ReprojectionTerm:
     (:func:`align_depth`'s ``features``).
 
     For ``T_c_w = (R, t)`` and the step of :func:`align_depth` (``R <- Exp(omega) R``, ``t <- t + tau``), the camera
-    point ``p = R X + t`` moves by ``-[R X]_x omega + tau``; the pinhole's Jacobian ``(fx / z, 0, -fx x / z^2;
-    0, fy / z, -fy y / z^2)`` carries that to the pixel."""
+    point ``p = R X + t`` moves by ``-[R X]_x omega + tau``: the left perturbation of
+    :func:`~dynslam_lab.geometry.projection.projection_jacobian` with ``nu = tau + [t]_x omega``."""
 
     X_w: np.ndarray
     uv: np.ndarray
@@ -298,23 +317,18 @@ class ReprojectionTerm:
     def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals ``(2M,)`` (u and v of each point in turn) and their Jacobian ``(2M, 6)``; points
         behind the camera are left out."""
-        RX = self.X_w @ R.T
-        p = RX + t
+        p = self.X_w @ R.T + t
         ok = p[:, 2] > 1e-6
-        RX, p, uv, s = RX[ok], p[ok], self.uv[ok], self.sigma[ok]
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        iz = 1.0 / p[:, 2]
-        x, y = p[:, 0] * iz, p[:, 1] * iz
-        e = np.stack([(fx * x + cx - uv[:, 0]) / s, (fy * y + cy - uv[:, 1]) / s], axis=1)
-        # d(pixel)/dp, whitened
-        Ju = np.stack([fx * iz, np.zeros_like(iz), -fx * x * iz], axis=1) / s[:, None]
-        Jv = np.stack([np.zeros_like(iz), fy * iz, -fy * y * iz], axis=1) / s[:, None]
-        # dp/d omega = -[R X]_x, i.e. (dp/d omega) w = w x (R X)  ->  row a: a . (w x RX) = w . (RX x a)
-        J = np.empty((len(p), 2, 6))
-        J[:, 0, :3] = np.cross(RX, Ju)
-        J[:, 1, :3] = np.cross(RX, Jv)
-        J[:, 0, 3:] = Ju
-        J[:, 1, 3:] = Jv
+        p, uv, s = p[ok], self.uv[ok], self.sigma[ok]
+        m = len(p)
+        # the left perturbation's Jacobian (geometry.projection); this step moves p by -[p - t]_x omega + tau,
+        # the left one's by -[p]_x omega + nu: nu = tau + [t]_x omega
+        J_left, xz, yz = projection_jacobian(p.T, self.K)
+        J = np.empty((m, 2, 6))
+        J[:, 0], J[:, 1] = J_left[:, :m].T, J_left[:, m:].T
+        J[..., :3] += J[..., 3:] @ skew(t)
+        J /= s[:, None, None]
+        e = np.stack([(self.K[0, 0] * xz + self.K[0, 2] - uv[:, 0]) / s, (self.K[1, 1] * yz + self.K[1, 2] - uv[:, 1]) / s], axis=1)
         return e.reshape(-1), J.reshape(-1, 6)
 
 

@@ -164,6 +164,7 @@ class TrackingConfig:
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
     dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
+    dense_view_margin_px: float = -1.0  # px; >= 0: only the depth samples that the motion prediction puts at least this far inside the reference's image cost the association gate when left unassociated (a sample the reference never saw is no evidence; charged, such samples pull the pose towards no motion: loop_flat seed 8, a slide of 32 mm a frame tracked as 9); negative (the default): every sample, as before, because that pull also damps the velocity the motion prediction carries across a plain wall (16 px: loop_flat worst of 12 seeds 46.9 -> 40.4 mm, but 3 seeds over 20 mm instead of 1); ours, docs/tracking.md "Samples the last frame never saw"
     dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
@@ -550,8 +551,11 @@ class Tracker:
             ref, T_r_w = self._dense_grid[1], se3_inv(last.T_w_c)
             self.dense_model_sources = 0
         sigma = cfg.dense_sigma_scale * nguyen_sigma(X[:, 2], 0.0, self._depth_noise)
-        return DenseTerm(X, sigma, ref, T_r_w, self.camera,
+        term = DenseTerm(X, sigma, ref, T_r_w, self.camera,
                          cfg.dense_max_distance, T_pred, (cfg.dense_prior_translation, cfg.dense_prior_rotation_deg))
+        if cfg.dense_view_margin_px >= 0:
+            term.charged = term.in_view(T_pred, cfg.dense_view_margin_px)
+        return term
 
     def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int], stride: int | None = None) -> np.ndarray:
         """``(h, w)`` bool over the dense grid (``stride`` px, ``dense_stride`` when None): cells within
