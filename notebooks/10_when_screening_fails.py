@@ -370,7 +370,7 @@ def draw_evidence(index=22, depth_m=0.1, steps=64, offsets="1, 2, 4, 8, 16", pri
 
 
 figure_explorer(draw_evidence, name="10 geometry evidence",
-                probes={"index": [5, 40], "depth_m": [0.02, 0.6], "steps": [0, 16],
+                probes={"index": [5, 40], "depth_m": [0.02, 0.6], "steps": [0, 8],
                         "offsets": ["1 (one frame)", "1, 2, 4"], "prior": ["anywhere (before 2026-12-04)"]},
                 index=int_slider("frame", 22, 2, N_FRAMES - 1),
                 depth_m=float_slider("tau floor depth_m [m]", 0.1, 0.02, 0.6, 0.02),
@@ -384,10 +384,11 @@ figure_explorer(draw_evidence, name="10 geometry evidence",
 # them (red). The near box on the right (outlined: truly moving) is mostly *yellow*: the earlier frames
 # saw other depth there, which only steers region growth, so few of its keypoints are flagged (the FN
 # count in the title). Move the controls and watch the counts and the tints: the region grows with the
-# steps (in our run 69 cells at 0 steps, ~370 at 16, over a thousand at 64); a floor of 0.6 m removes
+# steps (in our run 78 cells at 0 steps, 126 at 8, 142 from 16 on: it stops at the box's depth edges; the
+# same 76 keypoints are flagged at every setting, all by the tests themselves); a floor of 0.6 m removes
 # most of the yellow and lets the 2-D test against 8 frames back judge more keypoints (its "the older
 # frame saw this point" gate uses $\tau$ too), so
-# here more are flagged (olive); 0 steps leaves only the fresh cells (fewer keypoints flagged); with
+# here one more is flagged (olive: 72 against 71); 0 steps leaves only the fresh cells; with
 # one earlier frame the screener keeps no older frame, and the 2-D test compares with the previous one. At frame 40 the receding box is all yellow: the backward test sees
 # that the box's earlier surface has vanished, but that only steers region growth, and with no fresh
 # evidence not one keypoint is flagged: the failure of section 2, seen cell by cell. The last control
@@ -475,7 +476,7 @@ print({name: f"fired at frames {np.flatnonzero(r['fired']).tolist()}, final erro
 # %% [markdown]
 # **What to look for**: up to frame 15 both runs are the same. At frame 16 the movers hold enough of the
 # map matches to pull the feature pose; step 3c fires (black dots), flags the pulling surfaces whole and
-# hands the aligned pose to the later steps: the error stays at 10-25 mm. With the step off the same
+# hands the aligned pose to the later steps: the error stays within 7-38 mm. With the step off the same
 # frames show the movers' keypoints as static (few TP), tracking follows them, and the error grows by
 # about 2 cm a frame to more than half a metre at frame 47. What the step cannot do: a room of one plane
 # fixes only three of the six directions, and when the room itself is mostly covered, there is nothing to

@@ -57,6 +57,7 @@ from .history import FarFrames, FrameHistory
 from .oracle import OracleScreener
 from .stages import DETECTION_STAGES, STAGE_FUNCTIONS, FrameWork, ScreenerMemory, combine, finish, restoration_stage
 from .table import KeypointTable, check_uv
+from .reference_pose import ReferencePose
 from .regions import splat
 from .temporal import MovingMapPoints
 
@@ -103,6 +104,20 @@ def preset_config(filters: str, config: ScreeningConfig | None = None) -> Screen
     config = config or ScreeningConfig()
     overrides = PRESET_OVERRIDES.get(str(filters).strip().lower())
     return _apply(config, overrides) if overrides else config
+
+
+def stale_map_points(ref: ReferencePose, map_ids: np.ndarray) -> np.ndarray:
+    """Ids of the map points whose stored positions a frame's reference pose ``ref`` found stale: those matched
+    on the surfaces it found moving against the room, when the room decided (step 3b's room test, ``ref.room``,
+    or step 3c, the room's depth, ``ref.room_depth``); ``map_ids`` are the context's map point ids, which
+    ``ref.map_index`` indexes. Empty otherwise: a surface that only moved against the rest of the matches
+    (step 3b's leave-one-out) is not culled (every such surface culled: ``carried_xyz`` 0.09 -> 0.45 m), nor
+    are points the room did not judge. Culling step 3c's too: ``random_204`` 0.260 -> 0.035 m (the person
+    mapped at rest stayed in the map, and tracking followed its stale points)."""
+    if not (ref.room or ref.room_depth):
+        return np.zeros(0, np.int64)
+    moved = ref.surface_moved & (ref.map_index >= 0)
+    return np.unique(np.asarray(map_ids)[ref.map_index[moved]]) if moved.any() else np.zeros(0, np.int64)
 
 
 class Screener:
@@ -220,9 +235,8 @@ class Screener:
             moving = w.stages.get("temporal", np.zeros(w.n, bool)) & ~ref.known_moving & (ref.map_index >= 0)
             if moving.any():
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
-            moved = ref.surface_moved & (ref.map_index >= 0)
-            if self.config.temporal.cull_moved_points and ref.room and moved.any():  # the room test's verdict only
-                self.moved_map_ids = np.unique(context.map_ids[ref.map_index[moved]])
+            if self.config.temporal.cull_moved_points:
+                self.moved_map_ids = stale_map_points(ref, context.map_ids)
         region = w.grid_region
         if region is None and w.dynamic.any() and "multiframe" in self.stages:
             region = splat(w.uv, w.dynamic, self.config.multiframe.factor, w.small_depth.shape)

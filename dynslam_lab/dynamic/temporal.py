@@ -34,7 +34,7 @@ class TemporalConfig:
 
     dilate_cells: int = 0  # the previous region grows by this many cells before the lookup; ours, 0 (a grown prior spills onto uncovered background)
     max_moving_points: int = 200_000  # map point ids remembered at most (oldest forgotten first); ours
-    cull_moved_points: bool = True  # map points on a surface found moving against the room (reference pose step 3b) are removed from the SLAM map (their stored positions are stale); ours (for every surface step 3b finds: carried_xyz 0.09 -> 0.45 m)
+    cull_moved_points: bool = True  # map points on a surface found moving against the room (reference pose step 3b's room test, or step 3c) are removed from the SLAM map (their stored positions are stale; screening.stale_map_points); ours (for every surface step 3b finds: carried_xyz 0.09 -> 0.45 m)
     hold_overlap: float = 0.5  # a surface lying this share inside the cells of surfaces seen moving in the previous frame is the same object (fraction of its cells); ours
     hold_frames: int = 0  # ... and stays dynamic this many frames after the last fresh verdict on it (frames; 0 = off, the default also with the room test on: held surfaces covered the room's walls on random_113 and lost 77 frames on random_121, docs/robustness.md "The room test, on by default"); ours
 

@@ -211,3 +211,22 @@ def test_an_object_standing_in_the_room_is_not_its_shell():
 def test_room_depth_config_is_checked(field, value):
     with pytest.raises(ValueError, match=field):
         ReferencePoseConfig(**{field: value})
+
+
+def test_stale_map_points_are_those_the_room_found_moving():
+    """The map points the SLAM system removes after a frame (``Screener.moved_map_ids``): those matched on the
+    surfaces the reference pose found moving, only when the room decided (step 3b's room test or step 3c)."""
+    from dynslam_lab.dynamic.reference_pose import ReferencePose
+    from dynslam_lab.dynamic.screening import stale_map_points
+
+    ref = ReferencePose.none(6)
+    ref.map_index[:] = [0, 1, -1, 2, 3, 4]
+    ref.surface_moved[:] = [True, True, True, False, True, False]  # keypoint 2 has no map match
+    map_ids = np.array([10, 11, 12, 13, 14])
+    assert len(stale_map_points(ref, map_ids)) == 0  # the leave-one-out test alone: not culled
+    ref.room_depth = True
+    assert stale_map_points(ref, map_ids).tolist() == [10, 11, 13]
+    ref.room_depth, ref.room = False, True
+    assert stale_map_points(ref, map_ids).tolist() == [10, 11, 13]
+    ref.surface_moved[:] = False
+    assert len(stale_map_points(ref, map_ids)) == 0
