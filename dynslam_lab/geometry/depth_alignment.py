@@ -218,16 +218,23 @@ class DenseTerm:
     prior_sigma: tuple[float, float] = (0.02, 1.0)  # (m, deg) of that prior
     charged: np.ndarray | None = None  # (M,) bool: the points that cost the gate when unassociated (None: all)
 
-    def in_view(self, T_c_w: np.ndarray, margin_px: float) -> np.ndarray:
-        """``(M,)`` bool: the points that ``T_c_w`` puts in front of the reference camera and at least
-        ``margin_px`` inside its image (the grid's extent)."""
-        T = self.T_r_w @ np.linalg.inv(T_c_w)
-        Y = self.X @ T[:3, :3].T + T[:3, 3]
+    def _in_reference(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For the pose ``T_c_w = (R, t)``: the points in the reference camera ``Y (M, 3)``, their pixels
+        ``u, v (M,)`` there, and whether they lie in front of it."""
+        R_r, t_r = self.T_r_w[:3, :3], self.T_r_w[:3, 3]
+        # frame camera -> world -> reference camera, in one rotation and translation
+        R_rc = R_r @ R.T
+        t_rc = t_r - R_rc @ t
+        Y = self.X @ R_rc.T + t_rc
         z = Y[:, 2]
         front = z > 1e-6
         inv_z = 1.0 / np.where(front, z, 1.0)
-        u = self.camera.fx * Y[:, 0] * inv_z + self.camera.cx
-        v = self.camera.fy * Y[:, 1] * inv_z + self.camera.cy
+        return Y, self.camera.fx * Y[:, 0] * inv_z + self.camera.cx, self.camera.fy * Y[:, 1] * inv_z + self.camera.cy, front
+
+    def in_view(self, T_c_w: np.ndarray, margin_px: float) -> np.ndarray:
+        """``(M,)`` bool: the points that ``T_c_w`` puts in front of the reference camera and at least
+        ``margin_px`` inside its image (the grid's extent)."""
+        _, u, v, front = self._in_reference(T_c_w[:3, :3], T_c_w[:3, 3])
         h, w = self.ref.V.shape[:2]
         s = self.ref.stride
         # the grid's cells cover [-s/2, (w - 1/2) s) px: the image as the association's rounding sees it
@@ -237,19 +244,12 @@ class DenseTerm:
     def associate(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For the pose ``T_c_w = (R, t)``: indices of the associated points, their normals ``n`` in the
         reference camera and signed distances ``d = n . (Y_r - V)`` (m)."""
-        R_r, t_r = self.T_r_w[:3, :3], self.T_r_w[:3, 3]
-        # frame camera -> world -> reference camera, in one rotation and translation
-        R_rc = R_r @ R.T
-        t_rc = t_r - R_rc @ t
-        Y = self.X @ R_rc.T + t_rc
-        cam, s = self.camera, self.ref.stride
+        Y, u, v, front = self._in_reference(R, t)
+        s = self.ref.stride
         h, w = self.ref.V.shape[:2]
-        z = Y[:, 2]
-        front = z > 1e-6
-        inv_z = 1.0 / np.where(front, z, 1.0)
         # nearest grid cell of the projection (pixel / stride, rounded)
-        j = np.floor((cam.fx * Y[:, 0] * inv_z + cam.cx) / s + 0.5)
-        i = np.floor((cam.fy * Y[:, 1] * inv_z + cam.cy) / s + 0.5)
+        j = np.floor(u / s + 0.5)
+        i = np.floor(v / s + 0.5)
         idx = np.flatnonzero(front & (i >= 0) & (i < h) & (j >= 0) & (j < w))
         i, j = i[idx].astype(np.int64), j[idx].astype(np.int64)
         cell = i * w + j
