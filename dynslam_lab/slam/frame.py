@@ -58,6 +58,8 @@ class SlamFrame:
     T_w_c : ``(4, 4)`` pose (camera to world) once tracked, else None.
     depth_image : ``(H, W)`` the frame's depth image (m, 0 = none; the frame's own array, not a copy)
         for the dense depth term of tracking, or None.
+    dynamic_region : ``(H, W)`` bool pixels the screening judged dynamic (its region, or the oracle's
+        masks), left out of the dense depth term; None without one.
     """
 
     index: int
@@ -71,6 +73,7 @@ class SlamFrame:
     outlier: np.ndarray
     T_w_c: np.ndarray | None = None
     depth_image: np.ndarray | None = None
+    dynamic_region: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -104,11 +107,13 @@ def make_slam_frame(
     static: np.ndarray | None = None,
     min_depth: float = 0.1,
     max_depth: float = 8.0,
+    dynamic_region: np.ndarray | None = None,
 ) -> SlamFrame:
     """Build the tracking view of an RGB-D ``frame`` from its ``features``.
 
     ``static`` is the screening verdict (``True`` = may be used), default all True.
-    Depths outside ``[min_depth, max_depth]`` metres count as missing.
+    Depths outside ``[min_depth, max_depth]`` metres count as missing. ``dynamic_region``: the screened
+    region ``(H, W)`` bool of the frame (the depth image's shape; an empty one is kept as None), or None.
     """
     cam: PinholeCamera = frame.camera
     n = len(features)
@@ -131,7 +136,17 @@ def make_slam_frame(
         map_point_ids=np.full(n, -1, np.int64),
         outlier=np.zeros(n, bool),
         depth_image=frame.depth,
+        dynamic_region=_region_of(dynamic_region, frame.depth),
     )
+
+
+def _region_of(region: np.ndarray | None, depth: np.ndarray | None) -> np.ndarray | None:
+    if region is None or depth is None:
+        return None
+    region = np.asarray(region, bool)
+    if region.shape != np.shape(depth):
+        raise ValueError(f"dynamic region of shape {region.shape} for a depth image of shape {np.shape(depth)}")
+    return region if region.any() else None
 
 
 @dataclass(eq=False)

@@ -441,10 +441,12 @@ class System:
         dynamic, table = self._screen(frame, feats, detections, t)
         self._record_region(frame, table)
         tc = self.config.tracking
-        sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth)
+        region = getattr(table, "region_mask", None)
+        sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth,
+                             dynamic_region=region if tc.dense_mask_region else None)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
                           n_dynamic=int(dynamic.sum()), uv=feats.uv, dynamic=dynamic, table=table,
-                          region_mask=getattr(table, "region_mask", None), error="; ".join(loop_errors))
+                          region_mask=region, error="; ".join(loop_errors))
         t0 = time.perf_counter()
         kf = None
         new_pts = np.zeros(0, np.int64)

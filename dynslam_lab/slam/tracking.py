@@ -162,6 +162,8 @@ class TrackingConfig:
     static_scene_max_dynamic: float = 0.02  # fraction of a frame's keypoints judged dynamic above which the frame counts as dynamic (static_scene_frames); ours
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
+    dense_mask_region: bool = True  # depth samples inside the screened dynamic region (the oracle's masks, the region stage's region) are left out of the dense term too; ours
+    dense_in_dynamic_scenes: bool = False  # the dense term ("weak", "auto") engages on scenes judged dynamic too (static_scene_frames then governs the far points only); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
     dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
     dense_view_margin_px: float = -1.0  # px; >= 0: only the depth samples that the motion prediction puts at least this far inside the reference's image cost the association gate when left unassociated (a sample the reference never saw is no evidence; charged, such samples pull the pose towards no motion: loop_flat seed 8, a slide of 32 mm a frame tracked as 9); negative (the default): every sample, as before, because that pull also damps the velocity the motion prediction carries across a plain wall (16 px: loop_flat worst of 12 seeds 46.9 -> 40.4 mm, but 3 seeds over 20 mm instead of 1); ours, docs/tracking.md "Samples the last frame never saw"
@@ -218,7 +220,8 @@ class TrackingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second", "start_from_reference"):
+        for name in ("overlap_detection", "local_ratio_any_level", "velocity_per_second", "start_from_reference",
+                     "dense_mask_region", "dense_in_dynamic_scenes"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in at_least_one:
@@ -558,20 +561,23 @@ class Tracker:
         return term
 
     def _dynamic_cells(self, frame: SlamFrame, shape: tuple[int, int], stride: int | None = None) -> np.ndarray:
-        """``(h, w)`` bool over the dense grid (``stride`` px, ``dense_stride`` when None): cells within
-        ``dense_mask_radius`` px of a keypoint the screening judged dynamic (vectorised: the keypoints' cells,
-        dilated by a disc)."""
+        """``(h, w)`` bool over the dense grid (``stride`` px, ``dense_stride`` when None): cells whose
+        sample pixel lies in the frame's screened region (``dense_mask_region``), and cells within
+        ``dense_mask_radius`` px of a keypoint the screening judged dynamic (vectorised: the keypoints'
+        cells, dilated by a disc)."""
+        s = self.cfg.dense_stride if stride is None else stride
         out = np.zeros(shape, bool)
         dyn = frame.uv[~frame.static]
-        if not len(dyn) or self.cfg.dense_mask_radius <= 0:
-            return out
-        s = self.cfg.dense_stride if stride is None else stride
-        i = np.clip(np.round(dyn[:, 1] / s).astype(np.int64), 0, shape[0] - 1)
-        j = np.clip(np.round(dyn[:, 0] / s).astype(np.int64), 0, shape[1] - 1)
-        out[i, j] = True
-        r = int(np.ceil(self.cfg.dense_mask_radius / s))
-        disc = (np.add.outer(np.arange(-r, r + 1) ** 2, np.arange(-r, r + 1) ** 2) <= r * r).astype(np.uint8)
-        return cv2.dilate(out.astype(np.uint8), disc) > 0
+        if len(dyn) and self.cfg.dense_mask_radius > 0:
+            i = np.clip(np.round(dyn[:, 1] / s).astype(np.int64), 0, shape[0] - 1)
+            j = np.clip(np.round(dyn[:, 0] / s).astype(np.int64), 0, shape[1] - 1)
+            out[i, j] = True
+            r = int(np.ceil(self.cfg.dense_mask_radius / s))
+            disc = (np.add.outer(np.arange(-r, r + 1) ** 2, np.arange(-r, r + 1) ** 2) <= r * r).astype(np.uint8)
+            out = cv2.dilate(out.astype(np.uint8), disc) > 0
+        if frame.dynamic_region is not None:
+            out |= frame.dynamic_region[::s, ::s][: shape[0], : shape[1]]
+        return out
 
     def track_dense(self, frame: SlamFrame) -> bool:
         """Track ``frame`` again with the dense depth term in every motion-only BA (ours, for frames
@@ -811,7 +817,7 @@ class Tracker:
         on a frame with ``dense_max_keypoints`` keypoints with depth or more. Ours, docs/tracking.md "Dense
         depth term, automatic"."""
         cfg = self.cfg
-        if cfg.dense in ("off", "always") or not self.scene_static(frame.index):
+        if cfg.dense in ("off", "always") or not (cfg.dense_in_dynamic_scenes or self.scene_static(frame.index)):
             return False
         if cfg.dense_max_keypoints and int(np.isfinite(frame.depth).sum()) >= cfg.dense_max_keypoints:
             return False  # texture enough: the features failed for another reason (a mover took them)
