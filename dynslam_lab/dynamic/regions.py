@@ -46,12 +46,15 @@ class RegionConfig:
     seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
     prior_on_fresh_surfaces: bool = True  # the prior reopens confirmed-static cells only on surfaces holding min_fresh_cells of fresh evidence; ours
     crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
+    surface_share: float = 0.0  # > 0: a surface (depth segment of step 3b, split at creases) with at least this share of its cells in the region joins it whole, keypoints and cells (the region misses a mover's parts the earlier frames saw at the same depth, where the ORB budget puts its keypoints); 0 = off; ours
 
     def __post_init__(self) -> None:
         if self.steps < 0 or self.min_fresh_cells < 1 or self.static_min_agree < 1:
             raise ValueError("RegionConfig: steps >= 0, min_fresh_cells >= 1 and static_min_agree >= 1 required")
         if not 0 < self.crease_deg < 180:
             raise ValueError(f"RegionConfig.crease_deg must be in (0, 180) degrees, got {self.crease_deg}")
+        if not 0 <= self.surface_share <= 1:
+            raise ValueError(f"RegionConfig.surface_share must be in [0, 1], got {self.surface_share}")
         if not 0 < self.continuity_rel < 1:
             raise ValueError(f"RegionConfig.continuity_rel must be in (0, 1), got {self.continuity_rel}")
 
@@ -206,3 +209,18 @@ def splat(uv: np.ndarray, flags: np.ndarray, factor: int, shape: tuple[int, int]
         r, c, inside = cells_at(np.asarray(uv)[flags], factor, shape)
         out[r[inside], c[inside]] = True
     return out
+
+
+def whole_surfaces(region: np.ndarray, labels: np.ndarray, cells: np.ndarray, share: float) -> np.ndarray:
+    """``region (h, w)`` bool with every surface that lies at least ``share`` inside it added whole (ours).
+
+    ``labels (h, w)`` int surface of each cell (0 = none), ``cells`` the cell count of each label (label 0
+    first). A mover the earlier frames saw at the same depth where it is now (a panel sliding along its own
+    plane) is confirmed static there and the region stops short of it; its keypoints crowd into those parts
+    (the ORB budget keeps them off the previous region). A surface mostly in the region is the mover.
+    """
+    inside = np.bincount(labels[region], minlength=len(cells))[: len(cells)]
+    whole = inside >= share * np.maximum(cells, 1)
+    whole[0] = False
+    return region | whole[labels]
+

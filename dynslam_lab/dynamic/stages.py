@@ -45,7 +45,7 @@ from .multiframe import eroded_depth, free_space_test, grid_points, vanished_tes
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
 from .room_depth import RoomDepth, reference_grid, room_labels, room_points
-from .regions import cells_at, depth_continuity, grow_regions, prior_on_fresh_surfaces, splat, supported_regions, surface_segments
+from .regions import cells_at, depth_continuity, grow_regions, prior_on_fresh_surfaces, splat, supported_regions, surface_segments, whole_surfaces
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
 from .temporal import MovingMapPoints, warp_region
@@ -687,6 +687,8 @@ def regions_stage(w: FrameWork) -> None:
     continuity = depth_continuity(small, cfg.continuity_rel)
     grown = grow_regions(fresh, allowed | fresh, continuity, cfg.steps)
     region = supported_regions(grown, fresh, cfg.min_fresh_cells, continuity)
+    if cfg.surface_share > 0 and region.any():
+        region = whole_surfaces(region, w.surface_grid(), w._cache["surface_cells"], cfg.surface_share)
     w.grid_region = region
     r, c, inside = cells_at(w.uv, factor, shape)
     # a keypoint takes its cell's verdict when it lies on the cell's surface (a keypoint on the wall

@@ -17,6 +17,7 @@ from dynslam_lab.dynamic.regions import (
     splat,
     supported_regions,
     surface_segments,
+    whole_surfaces,
 )
 from dynslam_lab.dynamic.temporal import MovingMapPoints, TemporalConfig, warp_region
 from dynslam_lab.geometry.se3 import make_pose
@@ -56,6 +57,33 @@ def test_surface_segments_separate_a_box_from_the_floor_it_stands_on():
     ch, cv = depth_continuity(z, 0.04)
     _, joined = continuity_components(z > 0, (ch, cv))
     assert np.isin(joined[floor], np.unique(joined[inner])).any()
+
+
+def test_a_surface_mostly_in_the_region_joins_it_whole():
+    """The box of ``_box_on_floor`` with 60 % of its face in the region (its left part: the part an earlier
+    frame saw at the same depth is missing) joins whole at share 0.5 and stays as it was at 0.7; a large
+    surface with a strip of the region (a fifth to 45 % of it) never joins; share 1 needs the surface whole
+    already."""
+    z, face = _box_on_floor()
+    n, labels = surface_segments(z, GRID, RegionConfig().continuity_rel, RegionConfig().crease_deg)
+    cells = np.bincount(labels.ravel(), minlength=n + 1)
+    box = np.bincount(labels[face]).argmax()
+    on_box = labels == box
+    cols = np.flatnonzero(on_box.any(axis=0))
+    region = on_box & (np.arange(labels.shape[1])[None, :] < cols[0] + 0.6 * len(cols))
+    big = np.argsort(cells[1:])[-2:] + 1  # the two largest surfaces: the far wall and the floor beyond the box
+    other = big[big != box][0]
+    strip = (labels == other) & (np.cumsum(labels == other, axis=1) <= 40)  # 40 of its cells a row
+    assert 0.2 < strip.sum() / cells[other] < 0.45
+    region |= strip
+    share_in = region[on_box].mean()
+    assert 0.5 < share_in < 0.7
+    out = whole_surfaces(region, labels, cells, 0.5)
+    assert out[on_box].all() and np.array_equal(out & ~on_box, region & ~on_box)  # the box whole, nothing else
+    assert np.array_equal(whole_surfaces(region, labels, cells, 0.7), region)
+    assert np.array_equal(whole_surfaces(out, labels, cells, 1.0), out)  # a surface already whole stays
+    with pytest.raises(ValueError, match="surface_share must be in"):
+        RegionConfig(surface_share=1.5)
 
 
 def test_continuity_components_match_a_union_find_reference():
