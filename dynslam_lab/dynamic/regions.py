@@ -217,10 +217,10 @@ def whole_surfaces(region: np.ndarray, labels: np.ndarray, cells: np.ndarray, sh
     ``labels (h, w)`` int surface of each cell (0 = none), ``cells`` the cell count of each label (label 0
     first). A mover the earlier frames saw at the same depth where it is now (a panel sliding along its own
     plane) is confirmed static there and the region stops short of it; its keypoints crowd into those parts
-    (the ORB budget keeps them off the previous region). A surface mostly in the region is the mover.
+    (the ORB budget keeps them off the previous region). A surface mostly in the region is taken for the
+    mover, which a door in its wall is not (docs/robustness.md, "Whole surfaces into the region": off by default).
     """
     inside = np.bincount(labels[region], minlength=len(cells))[: len(cells)]
     whole = inside >= share * np.maximum(cells, 1)
     whole[0] = False
     return region | whole[labels]
-
