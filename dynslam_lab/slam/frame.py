@@ -59,7 +59,7 @@ class SlamFrame:
     depth_image : ``(H, W)`` the frame's depth image (m, 0 = none; the frame's own array, not a copy)
         for the dense depth term of tracking, or None.
     dynamic_region : ``(H, W)`` bool pixels the screening judged dynamic (its region, or the oracle's
-        masks), left out of the dense depth term; None without one.
+        masks), left out of the dense depth term when ``tracking.dense_mask_region``; None without one.
     """
 
     index: int

@@ -443,7 +443,7 @@ class System:
         tc = self.config.tracking
         region = getattr(table, "region_mask", None)
         sf = make_slam_frame(frame, feats, static=~dynamic, min_depth=tc.min_depth, max_depth=tc.max_depth,
-                             dynamic_region=region if tc.dense_mask_region else None)
+                             dynamic_region=region)
         res = FrameResult(frame.index, float(frame.timestamp), TrackState.LOST, None, n_features=len(feats),
                           n_dynamic=int(dynamic.sum()), uv=feats.uv, dynamic=dynamic, table=table,
                           region_mask=region, error="; ".join(loop_errors))

@@ -575,7 +575,7 @@ class Tracker:
             r = int(np.ceil(self.cfg.dense_mask_radius / s))
             disc = (np.add.outer(np.arange(-r, r + 1) ** 2, np.arange(-r, r + 1) ** 2) <= r * r).astype(np.uint8)
             out = cv2.dilate(out.astype(np.uint8), disc) > 0
-        if frame.dynamic_region is not None:
+        if self.cfg.dense_mask_region and frame.dynamic_region is not None:
             out |= frame.dynamic_region[::s, ::s][: shape[0], : shape[1]]
         return out
 
