@@ -472,17 +472,18 @@ def plot_bars(rows: list[dict], path: Path) -> bool:
 
 # -------------------------------------------------------------------------------------- main
 def resolve_sequences(items: list[str], max_frames: int | None) -> list[Path]:
-    """Folders as given; a synthetic preset name is rendered (cached) with ``max_frames`` frames (300)."""
+    """Folders as given; a synthetic preset name (office or stress scene, ``dynslam synth --list``) is
+    rendered (cached) with ``max_frames`` frames (300)."""
     out = []
     for item in items:
         p = Path(item)
         if p.is_dir():
             out.append(p.resolve())
             continue
-        from dynslam_lab.datasets.synthetic import PRESETS, synthetic_sequence
+        from dynslam_lab.datasets.synthetic import preset_names, synthetic_sequence
 
-        if item not in PRESETS:
-            raise SystemExit(f"error: {item}: neither a sequence folder nor a synthetic preset ({', '.join(PRESETS)})")
+        if item not in preset_names() and not (item.endswith("_nomovers") and item.removesuffix("_nomovers") in preset_names()):
+            raise SystemExit(f"error: {item}: neither a sequence folder nor a synthetic preset ({', '.join(preset_names())})")
         out.append(Path(synthetic_sequence(item, n_frames=max_frames or 300, progress=True)))
     return out
 

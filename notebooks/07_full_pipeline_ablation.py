@@ -20,7 +20,8 @@
 # - why a perfect detector hides the geometric stages, and what happens when the detector misses
 #   people;
 # - the ablation the papers print (Wu et al. 2022 Table 3, Chang et al. 2021 Table I): one SLAM
-#   run per filter, and what the papers could not measure: per-keypoint precision and recall.
+#   run per filter, and what the papers could not measure: per-keypoint precision and recall;
+# - the table every paper puts first: ORB-SLAM3 against the dynamic system, on the same sequences.
 #
 # The improvement the papers report is $\eta = (\mathrm{ATE}_{\text{none}} - \mathrm{ATE}_{\text{filter}})
 # / \mathrm{ATE}_{\text{none}} \times 100\%$, and the keypoint scores are
@@ -165,3 +166,69 @@ answer = None  # your code: a filter name
 
 # %% check="07.3"
 check("07.3", answer, df[df["filter"] != "oracle"].set_index("filter")["recall"].idxmax())
+
+# %% [markdown]
+# ## 3. Ours against ORB-SLAM3
+#
+# Every paper this toolkit teaches prints one table above all: ORB-SLAM2/3 against its dynamic
+# variant on the same sequences, with ATE, RPE and time per frame (Wu et al. 2022 Tables 4-8, Ge et
+# al. 2024 Tables 1-3). `benchmarks/peers.py` makes it on any sequence (docs/peers.md): each system
+# runs in its own process, back to back, and one evaluation scores every trajectory. ORB-SLAM3
+# (Campos et al. 2021) comes from the `peers` extra (`pip install -e ".[peers]"`, the GPL-3.0
+# `pyorbslam3` wheel, run in its own process, never imported by the toolkit); where it is not
+# installed the table says so and shows the rest. Here: 90 frames of a static scene, of the walking
+# scene and of a stress scene (two textured boxes no detector can name), our `none` and `full`
+# (with YOLOX-Nano when `../shared/data` has it, else the oracle detector). The speed target (issue
+# 17) is measured on 300 frames: docs/peers.md.
+
+# %% figures=1
+import json
+import os
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path("..").resolve()
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import peers  # noqa: E402  benchmarks/peers.py
+
+from dynslam_lab.evaluation.trajectory import read_tum_trajectory  # noqa: E402
+from dynslam_lab.viz.plots import plot_trajectories  # noqa: E402
+
+SHARED = Path(os.environ.get("DYNSLAM_SHARED_DATA", ROOT.parent / "shared" / "data"))
+yolox = SHARED / "models" / "yolox_nano.onnx"
+DETECTOR = f"onnx:{yolox}" if yolox.is_file() else "oracle"
+peer_out = Path(tempfile.mkdtemp(prefix="dynslam_peers_"))
+peers.main(["static_xyz", "walking_xyz", "boxes_xyz", "--max-frames", "90", "--filters", "none,full",
+            "--detector", DETECTOR, "--peers", "orbslam3", "--no-plots", "--out", str(peer_out)])
+table = pd.read_csv(peer_out / "peers.csv")
+display(Markdown((peer_out / "peers.md").read_text().split("## All measurements")[0]))
+
+ok = table[table["status"] == "ok"]
+fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
+for ax, (col, title, log) in zip(axes[:2], (("ate_rmse_m", "ATE RMSE (m)", True), ("mean_ms", "mean ms per frame", False))):
+    wide = ok.pivot(index="sequence", columns="system", values=col)
+    wide.plot.bar(ax=ax, logy=log, rot=0)
+    ax.set_title(title)
+    ax.grid(True, axis="y", alpha=0.3)
+walk = ok[ok["sequence"] == "walking_xyz"]
+gt = read_tum_trajectory(peers.resolve_sequences(["walking_xyz"], 90)[0] / "groundtruth.txt")
+paths = {"ground truth": gt}
+for _, r in walk.iterrows():
+    res = json.loads((Path(r["run_dir"]) / "evaluation.json").read_text())
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = np.asarray(res["align"]["R"]), np.asarray(res["align"]["t"])
+    paths[r["system"]] = read_tum_trajectory(Path(r["run_dir"]) / "trajectory.txt").transformed(T, res["align"]["scale"])
+gt_span = (gt.timestamps <= max(p.timestamps[-1] for p in paths.values()) + 0.05)
+paths["ground truth"] = gt.subset(np.flatnonzero(gt_span))
+plot_trajectories(paths, plane="xy", ax=axes[2], title="walking_xyz, top view, aligned");
+
+# %% [markdown]
+# **What to look for**: on the static scene every system lands within a few millimetres, and our
+# `none` runs about as fast as ORB-SLAM3 (C++, three threads). On the walking scene ORB-SLAM3 and
+# our `none` follow the people (centimetres to decimetres of error), while `full` stays within
+# millimetres. On the boxes no detector helps: `full` holds by its geometric stages alone. The time
+# `full` spends is the price of screening; docs/speed.md says where it goes, and `detection.stride =
+# 2` (detect every other frame) trades a little accuracy for about a tenth of it. The milliseconds
+# here are those of this machine at this moment: compare the columns of one table, never two tables.

@@ -109,6 +109,13 @@ class DetectionConfig:
     nanodet_reg_max: int = 7
     # onnxruntime intra-op threads; 0 = onnxruntime's default (all cores). Default 0.
     num_threads: int = 0
+    # Detect every `stride`-th frame (frame index divisible by it); each frame between takes the
+    # last detection's boxes and masks grown by `carry_margin_px` per frame since (objects move),
+    # as Detect-SLAM (Zhong et al. 2018) and RDS-SLAM (Liu and Miura 2021) run semantics on some
+    # frames only. 1 = every frame. Default 1 (docs/speed.md, "Detection stride").
+    stride: int = 1
+    # Pixels a carried box (and mask) grows per frame since its detection. Default 12.
+    carry_margin_px: float = 12.0
     # The oracle backend's imperfections.
     oracle: OracleConfig = field(default_factory=OracleConfig)
     # Class motion-prior tables (Zhang et al. 2023, 003, 004).
@@ -138,6 +145,10 @@ class DetectionConfig:
             raise ValueError(f"detection.oracle.min_area: {o.min_area} must be >= 0 pixels")
         if self.nanodet_reg_max < 1:
             raise ValueError(f"detection.nanodet_reg_max: {self.nanodet_reg_max} must be >= 1")
+        if self.stride < 1:
+            raise ValueError(f"detection.stride: {self.stride} must be >= 1 (1 = detect every frame)")
+        if self.carry_margin_px < 0:
+            raise ValueError(f"detection.carry_margin_px: {self.carry_margin_px} must be >= 0 pixels")
         if self.num_threads < 0:
             raise ValueError(f"detection.num_threads: {self.num_threads} must be >= 0 (0 = onnxruntime's default)")
         for c in self.classes:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from .coco import COCO_CLASSES
@@ -70,6 +71,27 @@ class Detections:
             masks=None if self.masks is None else self.masks[keep], source=self.source,
             timings_ms=dict(self.timings_ms),
         )
+
+    def grown(self, margin_px: float, source: str | None = None) -> "Detections":
+        """The same detections with every box grown by ``margin_px`` on each side (clipped to the
+        image) and every mask dilated by as many pixels (a square): where an object seen on an
+        earlier frame can be on this one (``detection.stride``). ``source``: the new ``source``
+        (default: this one's)."""
+        if margin_px < 0:
+            raise ValueError(f"Detections.grown: margin_px must be >= 0, got {margin_px}")
+        h, w = self.image_size
+        boxes = self.boxes.copy()
+        boxes[:, :2] -= margin_px
+        boxes[:, 2:] += margin_px
+        boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0.0, w - 1.0)
+        boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0.0, h - 1.0)
+        masks = self.masks
+        r = int(round(margin_px))
+        if masks is not None and r > 0 and len(masks):
+            k = np.ones((2 * r + 1, 2 * r + 1), np.uint8)  # separable: a few tenths of a ms per mask
+            masks = np.stack([cv2.dilate(m.astype(np.uint8), k) > 0 for m in masks])
+        return Detections(boxes, self.scores.copy(), self.class_ids.copy(), self.image_size, masks=masks,
+                          source=self.source if source is None else source)
 
     def region_masks(self) -> np.ndarray:
         """``(N, H, W)`` bool: the instance masks, or the filled boxes for a box-only detector."""

@@ -23,7 +23,7 @@ from __future__ import annotations
 import threading
 import time
 import weakref
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -45,6 +45,16 @@ from .tracking import Tracker, TrackState
 from .vocabulary import default_vocabulary
 
 __all__ = ["System", "FrameResult"]
+
+
+def _run_now(fn, *args) -> Future:
+    """``fn(*args)`` run here and now, as a finished future (its result or its exception)."""
+    future: Future = Future()
+    try:
+        future.set_result(fn(*args))
+    except Exception as exc:  # raised again by future.result(), where the frame is processed
+        future.set_exception(exc)
+    return future
 
 
 @dataclass
@@ -167,6 +177,7 @@ class System:
         self.loop_edges: list[tuple[int, int]] = []
         self.loop_errors: list[str] = []  # loop corrections that failed when applied at the end of a run
         self._pools: dict[str, ThreadPoolExecutor] = {}  # one-thread workers: "detect" (beside ORB), "orb" (ahead)
+        self._fresh: tuple[int, Future] | None = None  # the last frame given to the detector: (index, its detection)
         self._prepared: dict[int, _Prepared] = {}  # frame index -> work started ahead by prepare()
         # The screened regions of the last frames (frame index -> (H, W) bool or None), the prior of the
         # extraction of frame index + orb.prior_lag, and the index of the last frame process() began.
@@ -204,10 +215,49 @@ class System:
             return pool
 
     def _submit_detection(self, frame: Frame) -> Future | None:
-        """Start ``detector.detect(frame)`` in the detection worker (``tracking.overlap_detection``), else None."""
+        """Start the frame's detection in the detection worker (``tracking.overlap_detection``), else None."""
         if self.detector is None or not self.config.tracking.overlap_detection:
             return None
-        return self._worker("detect").submit(self._detect, frame)
+        return self._start_detection(frame, self._worker("detect").submit)
+
+    def _start_detection(self, frame: Frame, submit) -> Future:
+        """The future ``(detections, ms)`` of one frame: ``detector.detect(frame)``, or, between two
+        detected frames (``detection.stride``), the last detection carried over (:meth:`_carried`).
+        ``submit(fn, *args)`` runs the job (the worker's ``submit``, or :func:`_run_now`). Frames must
+        be started in order; which frames are detected depends on their indices only."""
+        src = self._carry_source(frame)
+        if src is not None:
+            return submit(self._carried, src[1], int(frame.index) - src[0], frame)
+        future = submit(self._detect, frame)
+        with self._lock:
+            self._fresh = (int(frame.index), future)
+        return future
+
+    def _carry_source(self, frame: Frame) -> tuple[int, Future] | None:
+        """``(index, future)`` of the detected frame whose detections ``frame`` takes, or None to
+        detect it: with ``detection.stride = s > 1`` a frame whose index is not a multiple of ``s``
+        takes those of the last frame detected, when that one is fewer than ``s`` frames back."""
+        stride = int(getattr(getattr(self.detector, "config", None), "stride", 1))
+        i = int(frame.index)
+        with self._lock:
+            src = self._fresh
+        if stride <= 1 or i % stride == 0 or src is None or not 0 < i - src[0] < stride:
+            return None
+        return src
+
+    def _carried(self, source: Future, gap: int, frame: Frame) -> tuple[Any, float]:
+        """The detections of the frame ``gap`` frames back (``source``) grown by ``gap x
+        detection.carry_margin_px`` (:meth:`Detections.grown`): where its objects can be now. When
+        that frame's detection failed or was dropped (a skipped frame), this frame is detected."""
+        t0 = time.perf_counter()
+        try:
+            detections, _ = source.result()
+        except (Exception, CancelledError):
+            return self._detect(frame)
+        if hasattr(detections, "grown"):
+            margin = gap * float(self.detector.config.carry_margin_px)
+            detections = detections.grown(margin, source=f"{detections.source} (carried from frame {int(frame.index) - gap})")
+        return detections, 1e3 * (time.perf_counter() - t0)
 
     def _extract(self, frame: Frame, prior: np.ndarray | None = None) -> tuple[Features, float]:
         """ORB features of one frame, and the extraction's time (ms; in whichever thread runs it).
@@ -323,7 +373,7 @@ class System:
             if future is not None:  # waited for even when ORB failed: one frame's detection at a time
                 detections, t["detect"] = future.result()
         if self.detector is not None and future is None:
-            detections, t["detect"] = self._detect(frame)
+            detections, t["detect"] = self._start_detection(frame, _run_now).result()
         return feats, detections
 
     def _screen(self, frame: Frame, feats: Features, detections: Any, t: dict) -> tuple[np.ndarray, Any]:

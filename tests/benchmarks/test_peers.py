@@ -378,3 +378,14 @@ def test_warm_page_cache_reads_every_file_of_the_sequence_once(tmp_path):
         (tmp_path / name).write_bytes(b"x" * n)
     assert peers.warm_page_cache(tmp_path) == sum(sizes.values())
     assert peers.warm_page_cache(tmp_path / "rgb") == sizes["rgb/a.png"] + sizes["rgb/b.png"]
+
+
+def test_sequences_are_folders_or_any_synthetic_preset(tmp_path, monkeypatch):
+    """A stress scene is a preset too (the issue's "static, walking and stress presets"); an unknown
+    name is refused with the names that exist."""
+    monkeypatch.setenv("DYNSLAM_CACHE", str(tmp_path / "cache"))
+    with pytest.raises(SystemExit, match="no_such_scene: neither a sequence folder nor a synthetic preset.*boxes_xyz"):
+        peers.resolve_sequences(["no_such_scene"], 2)
+    (seq,) = peers.resolve_sequences(["boxes_xyz"], 2)
+    assert len(TumSequence(seq)) == 2 and (seq / "groundtruth.txt").is_file()
+    assert peers.resolve_sequences([str(seq)], None) == [seq.resolve()]

@@ -108,3 +108,80 @@ def test_prepare_ahead_in_another_thread_gives_the_same_results():
     with pytest.raises(type(direct.value)):
         system.process(bad)
     assert system.process(frames[3]).state is not None
+
+
+class _Recording:
+    """A screener that records the detections each frame was screened with."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.seen: list[Detections] = []
+
+    def screen(self, frame, uv, detections, **kw):
+        self.seen.append(detections)
+        return self.inner.screen(frame, uv, detections, **kw)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+class _Counting(MovingBoxDetector):
+    def __init__(self, stride: int, fail_on: int = -1) -> None:
+        super().__init__()
+        self.config = replace(self.config, stride=stride, carry_margin_px=5.0)
+        self.called: list[int] = []
+        self.fail_on = fail_on
+
+    def detect(self, frame):
+        self.called.append(int(frame.index))
+        if frame.index == self.fail_on:
+            raise RuntimeError(f"detector crashed on frame {frame.index}")
+        return super().detect(frame)
+
+
+def _strided(frames, overlap: bool, stride: int = 3, ahead: int = 0, fail_on: int = -1):
+    cfg = Config()
+    cfg = replace(cfg, tracking=replace(cfg.tracking, overlap_detection=overlap))
+    det = _Counting(stride, fail_on)
+    screener = _Recording(build_screener("semantic", cfg.screening))
+    system = System(frames[0].camera, cfg, detector=det, screener=screener)
+    if ahead:
+        reader = threading.Thread(target=lambda: [system.prepare(f) for f in frames[:ahead]], name="reader")
+        reader.start()
+        reader.join()
+    results = []
+    for f in frames:
+        try:
+            results.append(system.process(f))
+        except RuntimeError as exc:
+            results.append(exc)
+    return det, screener, results
+
+
+def test_detection_stride_detects_every_third_frame_and_carries_the_boxes_grown():
+    """``detection.stride = 3``: frames 0, 3, 6 are detected; frames 1-2 and 4-5 take the last
+    detection's box grown by 5 px per frame since; the same in the worker, in the frame loop, and
+    prepared ahead."""
+    frames = scene.frames(40, "xyz")[:7]
+    det, screener, res = _strided(frames, overlap=True)
+    assert det.called == [0, 3, 6]
+    x = lambda i: 40.0 + 8.0 * i  # noqa: E731  the detector's box of frame i
+    for i, (src, grow) in enumerate([(0, 0), (0, 5), (0, 10), (3, 0), (3, 5), (3, 10), (6, 0)]):
+        np.testing.assert_allclose(screener.seen[i].boxes, [[x(src) - grow, 100 - grow, x(src) + 160 + grow, 400 + grow]])
+        assert ("carried from frame" in screener.seen[i].source) == (grow > 0)
+    assert all(r.timings_ms["detect"] >= 0 for r in res)
+    for other in (_strided(frames, overlap=False), _strided(frames, overlap=True, ahead=5)):
+        assert other[0].called == [0, 3, 6]
+        for a, b, da, db in zip(res, other[2], screener.seen, other[1].seen):
+            np.testing.assert_array_equal(da.boxes, db.boxes)
+            np.testing.assert_array_equal(a.dynamic, b.dynamic)
+            np.testing.assert_array_equal(a.T_w_c, b.T_w_c)
+
+
+def test_a_frame_whose_source_detection_failed_is_detected_itself():
+    frames = scene.frames(40, "xyz")[:6]
+    det, screener, res = _strided(frames, overlap=True, fail_on=3)
+    assert isinstance(res[3], RuntimeError) and "frame 3" in str(res[3])
+    assert det.called == [0, 3, 4, 5]  # 4 and 5 cannot take frame 3's: each detected
+    assert all(not isinstance(r, Exception) and r.tracked for r in res[4:])
+    assert [s.source for s in screener.seen[3:]] == ["", ""]
