@@ -52,6 +52,7 @@ import dataclasses
 import numpy as np
 
 from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
+from ..geometry.se3 import se3_inv, transform_points
 from .context import ScreeningContext
 from .history import FarFrames, FrameHistory
 from .oracle import OracleScreener
@@ -224,6 +225,22 @@ class Screener:
             region_mask=region_mask, timings_ms=w.timings,
         )
 
+    def _release_still(self, w: FrameWork, ref, context: ScreeningContext) -> np.ndarray:
+        """Map points seen moving whose keypoints now stand still in the world (``temporal.release_frames``):
+        forgotten as moving, returned to be culled from the map (docs/robustness.md, "Points seen moving that
+        stand still"). A static point whose stored position was off (made from a depth edge, or while the pose
+        was wrong) misses its map point by more than ``reference.inlier_px`` for ever, and was judged moving
+        again on every frame; a mover at rest is static while it stands. Empty when off or without a pose."""
+        cfg = self.config.temporal
+        if cfg.release_frames <= 0 or ref.T_c_w is None or ref.source != "map":
+            return np.zeros(0, np.int64)
+        k = np.flatnonzero(ref.known_moving & (ref.map_index >= 0) & np.isfinite(w.z) & (w.z > 0))
+        ids = context.map_ids[ref.map_index[k]]
+        z = w.z[k]
+        P_w = transform_points(se3_inv(ref.T_c_w), w.camera.backproject(w.uv_undistorted[k], z))
+        tol = cfg.release_tolerance_m + cfg.release_depth_share * z
+        return self.memory.moving_points.release_still(ids, P_w, tol, cfg.release_frames, int(w.frame.index))
+
     def _remember(self, w: FrameWork, context: ScreeningContext | None) -> None:
         """Keep this frame for the next ones; remember the map points matched to dynamic keypoints."""
         mem = self.memory
@@ -237,6 +254,9 @@ class Screener:
                 mem.moving_points.add(context.map_ids[ref.map_index[moving]])
             if self.config.temporal.cull_moved_points:
                 self.moved_map_ids = stale_map_points(ref, context.map_ids)
+            released = self._release_still(w, ref, context)
+            if len(released):
+                self.moved_map_ids = np.union1d(self.moved_map_ids, released)
         region = w.grid_region
         if region is None and w.dynamic.any() and "multiframe" in self.stages:
             region = splat(w.uv, w.dynamic, self.config.multiframe.factor, w.small_depth.shape)

@@ -37,6 +37,9 @@ class TemporalConfig:
     cull_moved_points: bool = True  # map points on a surface found moving against the room (reference pose step 3b's room test, or step 3c) are removed from the SLAM map (their stored positions are stale; screening.stale_map_points); ours (for every surface step 3b finds: carried_xyz 0.09 -> 0.45 m)
     hold_overlap: float = 0.5  # a surface lying this share inside the cells of surfaces seen moving in the previous frame is the same object (fraction of its cells); ours
     hold_frames: int = 0  # ... and stays dynamic this many frames after the last fresh verdict on it (frames; 0 = off, the default also with the room test on: held surfaces covered the room's walls on random_113 and lost 77 frames on random_121, docs/robustness.md "The room test, on by default"); ours
+    release_frames: int = 0  # a map point seen moving whose keypoint then stays at one world position (release_tolerance_m + release_depth_share x depth) over this many frames in a row is released: forgotten as moving and culled from the map (its stored position is what was off); 0 = off; ours (docs/robustness.md "Points seen moving that stand still")
+    release_tolerance_m: float = 0.02  # ... the world position's allowed spread (m), plus
+    release_depth_share: float = 0.01  # ... this share of the keypoint's depth
 
     def __post_init__(self) -> None:
         if self.dilate_cells < 0 or self.max_moving_points < 1:
@@ -45,6 +48,8 @@ class TemporalConfig:
             raise ValueError(f"TemporalConfig.hold_overlap must be in (0, 1], got {self.hold_overlap}")
         if self.hold_frames < 0:
             raise ValueError(f"TemporalConfig.hold_frames must be >= 0 frames, got {self.hold_frames}")
+        if self.release_frames < 0 or self.release_tolerance_m < 0 or self.release_depth_share < 0:
+            raise ValueError("TemporalConfig: release_frames, release_tolerance_m and release_depth_share must be >= 0")
 
 
 def warp_region(prev_region: np.ndarray, T_p_c: np.ndarray, depth: np.ndarray, camera, dilate_cells: int = 0,
@@ -97,12 +102,37 @@ class MovingMapPoints:
     def __init__(self, capacity: int) -> None:
         self.capacity = int(capacity)
         self._ids: dict[int, None] = {}
+        self._still: dict[int, tuple[np.ndarray, int, int]] = {}  # id -> (where it stands, frames seen there, last frame seen)
 
     def __len__(self) -> int:
         return len(self._ids)
 
     def clear(self) -> None:
         self._ids.clear()
+        self._still.clear()
+
+    def release_still(self, ids, P_w: np.ndarray, tolerance: np.ndarray, frames: int, frame: int) -> np.ndarray:
+        """Forget the points ``ids (K,)`` (remembered as moving) whose keypoints, seen on frame ``frame`` at the
+        world positions ``P_w (K, 3)``, have been seen within ``tolerance (K,)`` metres of where they first stood
+        still on ``frames`` frames, with no frame seeing them elsewhere; returns their ids. A point seen away
+        from where it stood starts again from there; one not seen for ``frames`` frames is forgotten."""
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        P_w = np.asarray(P_w, np.float64).reshape(-1, 3)
+        tolerance = np.broadcast_to(np.asarray(tolerance, np.float64), ids.shape)
+        released = []
+        for i, p, tol in zip(ids.tolist(), P_w, tolerance):
+            if i not in self._ids or not np.isfinite(p).all():
+                continue
+            anchor, n, _ = self._still.get(i, (p, 0, frame))
+            anchor, n = (anchor, n + 1) if np.linalg.norm(p - anchor) <= tol else (p, 1)
+            if n >= frames:
+                released.append(i)
+                self._ids.pop(i, None)
+                self._still.pop(i, None)
+            else:
+                self._still[i] = (anchor, n, frame)
+        self._still = {i: v for i, v in self._still.items() if frame - v[2] < frames and i in self._ids}
+        return np.asarray(released, np.int64)
 
     def add(self, ids) -> None:
         for i in np.asarray(ids, np.int64).reshape(-1).tolist():

@@ -233,6 +233,30 @@ def test_moving_map_points_and_history():
         TemporalConfig(dilate_cells=-1)
 
 
+def test_points_seen_moving_that_stand_still_are_released():
+    """``MovingMapPoints.release_still`` by hand: three frames within 5 cm of where a point first stood
+    release it; a step beyond starts the count again from there; a point unseen for three frames starts
+    again; points not remembered as moving are ignored."""
+    mp = MovingMapPoints(10)
+    mp.add([1, 2, 3])
+    P = {1: [0.0, 0.0, 1.0], 2: [0.0, 0.0, 2.0], 3: [0.0, 0.0, 3.0]}
+
+    def see(frame, pts):
+        ids = list(pts)
+        return mp.release_still(ids, np.array([pts[i] for i in ids]).reshape(-1, 3), 0.05, 3, frame).tolist()
+
+    assert see(0, {1: P[1], 2: P[2], 3: P[3], 7: [0, 0, 1]}) == []  # 7 was never seen moving
+    assert see(1, {1: [0.01, 0.0, 1.0], 2: [0.2, 0.0, 2.0]}) == []  # 2 stepped 20 cm: counts from there
+    assert see(2, {1: [0.0, 0.03, 1.02], 2: [0.21, 0.0, 2.0], 3: P[3]}) == [1]  # 3 frames within 5 cm
+    assert mp.contains([1, 2, 3]).tolist() == [False, True, True]
+    assert see(3, {2: [0.2, 0.01, 2.0]}) == [2]  # seen at 1 (moved), 2, 3 around (0.2, 0, 2)
+    assert see(4, {}) == [] and see(5, {}) == []  # 3 last seen at frame 2: forgotten at frame 5
+    assert see(6, {3: P[3]}) == [] and see(7, {3: P[3]}) == [] and see(8, {3: P[3]}) == [3]
+    assert len(mp) == 0
+    with pytest.raises(ValueError, match="release"):
+        TemporalConfig(release_frames=-1)
+
+
 def test_convex_edges_keep_an_object_whole_and_concave_ones_cut_it_from_the_floor():
     """A box seen from above its top face: top and front meet at a convex edge (joined); the box and the
     floor meet at a concave one (cut)."""
