@@ -222,7 +222,8 @@ for _, r in walk.iterrows():
     paths[r["system"]] = read_tum_trajectory(Path(r["run_dir"]) / "trajectory.txt").transformed(T, res["align"]["scale"])
 gt_span = (gt.timestamps <= max(p.timestamps[-1] for p in paths.values()) + 0.05)
 paths["ground truth"] = gt.subset(np.flatnonzero(gt_span))
-plot_trajectories(paths, plane="xy", ax=axes[2], title="walking_xyz, top view, aligned");
+plane = "".join("xyz"[i] for i in sorted(np.argsort(np.ptp(gt.positions, axis=0))[-2:]))  # the path's two widest axes
+plot_trajectories(paths, plane=plane, ax=axes[2], title=f"walking_xyz, aligned ({plane})");
 
 # %% [markdown]
 # **What to look for**: on the static scene every system lands within a few millimetres, and our

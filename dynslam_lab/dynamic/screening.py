@@ -51,8 +51,8 @@ import dataclasses
 
 import numpy as np
 
-from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
 from ..geometry.se3 import se3_inv, transform_points
+from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
 from .context import ScreeningContext
 from .history import FarFrames, FrameHistory
 from .oracle import OracleScreener

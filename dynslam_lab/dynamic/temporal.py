@@ -37,7 +37,7 @@ class TemporalConfig:
     cull_moved_points: bool = True  # map points on a surface found moving against the room (reference pose step 3b's room test, or step 3c) are removed from the SLAM map (their stored positions are stale; screening.stale_map_points); ours (for every surface step 3b finds: carried_xyz 0.09 -> 0.45 m)
     hold_overlap: float = 0.5  # a surface lying this share inside the cells of surfaces seen moving in the previous frame is the same object (fraction of its cells); ours
     hold_frames: int = 0  # ... and stays dynamic this many frames after the last fresh verdict on it (frames; 0 = off, the default also with the room test on: held surfaces covered the room's walls on random_113 and lost 77 frames on random_121, docs/robustness.md "The room test, on by default"); ours
-    release_frames: int = 0  # a map point seen moving whose keypoint then stays at one world position (release_tolerance_m + release_depth_share x depth) over this many frames in a row is released: forgotten as moving and culled from the map (its stored position is what was off); 0 = off; ours (docs/robustness.md "Points seen moving that stand still")
+    release_frames: int = 0  # a map point seen moving whose keypoint is then seen at one world position (within release_tolerance_m + release_depth_share x depth) on this many frames, and nowhere else meanwhile, is released: forgotten as moving and culled from the map (its stored position is what was off); 0 = off; ours (docs/robustness.md "Points seen moving that stand still")
     release_tolerance_m: float = 0.02  # ... the world position's allowed spread (m), plus
     release_depth_share: float = 0.01  # ... this share of the keypoint's depth
 
