@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from dynslam_lab.config import Config, load_config
-from dynslam_lab.evaluation import TrajectoryError, read_tum_trajectory
+from dynslam_lab.evaluation import Trajectory, TrajectoryError, read_tum_trajectory
 from dynslam_lab.pipeline import detector_stages
 
 HERE = Path(__file__).resolve().parent
@@ -400,6 +400,28 @@ def write_csv(rows: list[dict], path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------ plots
+def aligned_estimate(run_dir: Path) -> Trajectory:
+    """A finished run's trajectory aligned to the ground truth as its evaluation aligned it
+    (``evaluation.json``'s ``align``: rotation, translation, scale)."""
+    res = json.loads((Path(run_dir) / "evaluation.json").read_text())
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(res["align"]["R"])
+    T[:3, 3] = np.asarray(res["align"]["t"])
+    return read_tum_trajectory(Path(run_dir) / "trajectory.txt").transformed(T, res["align"]["scale"])
+
+
+def path_plane(gt: Trajectory) -> str:
+    """The two world axes along which the ground-truth path spreads most (``"xy"``, ``"xz"``, ...)."""
+    extent = np.ptp(gt.positions, axis=0)
+    return "".join("xyz"[i] for i in sorted(np.argsort(extent)[-2:]))
+
+
+def gt_over(gt: Trajectory, est: Trajectory) -> Trajectory:
+    """The ground truth over the estimate's time span only, so a partial run is not drawn against the whole path."""
+    span = (gt.timestamps >= est.timestamps[0] - 0.05) & (gt.timestamps <= est.timestamps[-1] + 0.05)
+    return gt.subset(np.flatnonzero(span))
+
+
 def plot_sequence_trajectories(rows: list[dict], seqdir: Path, path: Path) -> bool:
     """Each system's trajectory, aligned as the evaluation aligned it, over the ground truth
     (one panel per system, like the trajectory figures of YOLO-SLAM and ASG-SLAM)."""
@@ -412,22 +434,14 @@ def plot_sequence_trajectories(rows: list[dict], seqdir: Path, path: Path) -> bo
     if not gt_file.is_file() or not ok:
         return False
     gt = read_tum_trajectory(gt_file)
-    extent = np.ptp(gt.positions, axis=0)
-    plane = "".join("xyz"[i] for i in sorted(np.argsort(extent)[-2:]))
+    plane = path_plane(gt)
     n = len(ok)
     ncol = min(n, 3)
     nrow = math.ceil(n / ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 4.0 * nrow), squeeze=False, constrained_layout=True)
     for ax, r in zip(axes.ravel(), ok):
-        res = json.loads((Path(r["run_dir"]) / "evaluation.json").read_text())
-        est = read_tum_trajectory(Path(r["run_dir"]) / "trajectory.txt")
-        T = np.eye(4)
-        T[:3, :3] = np.asarray(res["align"]["R"])
-        T[:3, 3] = np.asarray(res["align"]["t"])
-        aligned = est.transformed(T, res["align"]["scale"])
-        # ground truth only over the estimate's time span, so a partial run is not drawn against the whole path
-        span = (gt.timestamps >= est.timestamps[0] - 0.05) & (gt.timestamps <= est.timestamps[-1] + 0.05)
-        plot_trajectories({"ground truth": gt.subset(np.flatnonzero(span)), _label(rows, r["system"]): aligned},
+        aligned = aligned_estimate(Path(r["run_dir"]))
+        plot_trajectories({"ground truth": gt_over(gt, aligned), _label(rows, r["system"]): aligned},
                           plane=plane, ax=ax, title=f"{_label(rows, r['system'])}: ATE {100 * r['ate_rmse_m']:.2f} cm")
     for ax in axes.ravel()[n:]:
         ax.axis("off")

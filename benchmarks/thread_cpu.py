@@ -76,7 +76,8 @@ class ThreadSampler:
         out: Counter = Counter()
         for tid, s in self.cpu.items():
             name = self.names.get(tid, "native")
-            out[name.rsplit("_", 1)[0] if name.rsplit("_", 1)[-1].isdigit() else name] += s
+            base, _, suffix = name.rpartition("_")
+            out[base if base and suffix.isdigit() else name] += s
         return out
 
 

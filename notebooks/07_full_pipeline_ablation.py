@@ -182,7 +182,6 @@ check("07.3", answer, df[df["filter"] != "oracle"].set_index("filter")["recall"]
 # 17) is measured on 300 frames: docs/peers.md.
 
 # %% figures=1
-import json
 import os
 import sys
 from pathlib import Path
@@ -214,15 +213,10 @@ for ax, (col, title, log) in zip(axes[:2], (("ate_rmse_m", "ATE RMSE (m)", True)
     ax.grid(True, axis="y", alpha=0.3)
 walk = ok[ok["sequence"] == "walking_xyz"]
 gt = read_tum_trajectory(peers.resolve_sequences(["walking_xyz"], 90)[0] / "groundtruth.txt")
-paths = {"ground truth": gt}
-for _, r in walk.iterrows():
-    res = json.loads((Path(r["run_dir"]) / "evaluation.json").read_text())
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = np.asarray(res["align"]["R"]), np.asarray(res["align"]["t"])
-    paths[r["system"]] = read_tum_trajectory(Path(r["run_dir"]) / "trajectory.txt").transformed(T, res["align"]["scale"])
-gt_span = (gt.timestamps <= max(p.timestamps[-1] for p in paths.values()) + 0.05)
-paths["ground truth"] = gt.subset(np.flatnonzero(gt_span))
-plane = "".join("xyz"[i] for i in sorted(np.argsort(np.ptp(gt.positions, axis=0))[-2:]))  # the path's two widest axes
+paths = {r["system"]: peers.aligned_estimate(Path(r["run_dir"])) for _, r in walk.iterrows()}  # as the evaluation aligned them
+longest = max(paths.values(), key=lambda t: t.timestamps[-1], default=None)
+paths = {"ground truth": gt if longest is None else peers.gt_over(gt, longest), **paths}
+plane = peers.path_plane(gt)  # the path's two widest axes
 plot_trajectories(paths, plane=plane, ax=axes[2], title=f"walking_xyz, aligned ({plane})");
 
 # %% [markdown]
