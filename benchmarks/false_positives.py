@@ -9,7 +9,8 @@ Usage::
 Renders (cached) each synthetic sequence (stress scenes, ``random_N``, office presets) and runs each filter
 (``geometry`` = no detector; ``NAME+oracle`` with the oracle detector) without loop closing, scored against
 the renderer's truth (``dynslam_lab.experiments.scoring.KeypointScorer``). Prints one markdown row per run: ATE,
-keypoint precision / recall, the false positives by kind (``FP_KINDS``) and the stages that flagged most of them.
+keypoint precision / recall, the false positives by kind (``FP_KINDS``), the stages that flagged most of them,
+and the misses (false negatives) on the movers' silhouettes and inside them (``FN_KINDS``).
 docs/robustness.md ("Where the false positives are") reads such a table.
 """
 
@@ -33,13 +34,14 @@ def main(argv: list[str] | None = None) -> int:
     from dynslam_lab.config import Config, load_config
     from dynslam_lab.datasets.tum import TumSequence
     from dynslam_lab.experiments.robustness import run_one, synthetic_specs
-    from dynslam_lab.experiments.scoring import FP_KINDS, KeypointScorer
+    from dynslam_lab.experiments.scoring import FN_KINDS, FP_KINDS, KeypointScorer
 
     config = load_config(args.config, Config()) if args.config else Config()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="false_positives_"))
     specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
-    print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) |")
-    print("|---|---|---|---|" + "---|" * len(FP_KINDS) + "---|")
+    print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) | "
+          + " | ".join(f"FN {k}" for k in FN_KINDS) + " |")
+    print("|---|---|---|---|" + "---|" * (len(FP_KINDS) + 1 + len(FN_KINDS)))
     t0 = time.time()
     for spec in specs:
         for label in (f.strip() for f in args.filters.split(",") if f.strip()):
@@ -50,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
             kinds = scorer.fp_by_kind
             stages = ", ".join(f"{k or '?'} {v}" for k, v in scorer.fp_by_stage.most_common(3))
             print(f"| `{spec.name}` | {label} | {r['ate_rmse_m']:.4f} | {r['precision']:.2f} / {r['recall']:.2f} | "
-                  + " | ".join(f"{kinds[k]:,}" for k in FP_KINDS) + f" | {stages} |", flush=True)
+                  + " | ".join(f"{kinds[k]:,}" for k in FP_KINDS) + f" | {stages} | "
+                  + " | ".join(f"{scorer.fn_by_kind[k]:,}" for k in FN_KINDS) + " |", flush=True)
     print(f"\n{len(specs)} sequences in {time.time() - t0:.0f} s; runs in {out}")
     return 0
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "prior_on_fresh_surfaces", "cells_at", "splat"]
+__all__ = ["RegionConfig", "depth_continuity", "crease_continuity", "surface_segments", "grow_regions", "continuity_components", "supported_regions", "prior_on_fresh_surfaces", "cells_at", "on_region", "splat"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,7 @@ class RegionConfig:
     seed_keypoints: bool = True  # dynamic keypoints of the other geometric tests seed regions; ours
     prior_on_fresh_surfaces: bool = True  # the prior reopens confirmed-static cells only on surfaces holding min_fresh_cells of fresh evidence; ours
     crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
+    edge_cells: int = 0  # a keypoint whose own cell straddles a depth edge (a mover's silhouette: no reduced depth) takes the region's verdict from a cell up to this many cells away on its own depth (on_region); 0 = its own cell only (the default: measured, docs/robustness.md "Keypoints on a mover's silhouette"); ours
     surface_share: float = 0.0  # > 0: a surface (depth segment of step 3b, split at creases) with at least this share of its cells in the region joins it whole, keypoints and cells (the region misses a mover's parts the earlier frames saw at the same depth, where the ORB budget puts its keypoints); 0 = off; ours
 
     def __post_init__(self) -> None:
@@ -53,6 +54,8 @@ class RegionConfig:
             raise ValueError("RegionConfig: steps >= 0, min_fresh_cells >= 1 and static_min_agree >= 1 required")
         if not 0 < self.crease_deg < 180:
             raise ValueError(f"RegionConfig.crease_deg must be in (0, 180) degrees, got {self.crease_deg}")
+        if not 0 <= self.edge_cells <= 3:
+            raise ValueError(f"RegionConfig.edge_cells must be in 0..3, got {self.edge_cells}")
         if not 0 <= self.surface_share <= 1:
             raise ValueError(f"RegionConfig.surface_share must be in [0, 1], got {self.surface_share}")
         if not 0 < self.continuity_rel < 1:
@@ -199,6 +202,34 @@ def cells_at(uv: np.ndarray, factor: int, shape: tuple[int, int]) -> tuple[np.nd
     r = np.floor((safe[:, 1] + 0.5) / factor).astype(np.int64)
     inside = finite & (c >= 0) & (c < w) & (r >= 0) & (r < h)
     return np.clip(r, 0, h - 1), np.clip(c, 0, w - 1), inside
+
+
+def on_region(region: np.ndarray, small: np.ndarray, r: np.ndarray, c: np.ndarray, z: np.ndarray, rel: float,
+              reach: int = 0) -> np.ndarray:
+    """``(N,)`` bool: the keypoints in cells ``(r, c)`` (:func:`cells_at`) at depth ``z (N,)`` that lie on the region.
+
+    A keypoint takes its cell's verdict when it lies on the cell's surface: the cell's reduced depth (``small``,
+    :func:`~.history.reduce_depth`) within ``2 rel`` of ``z`` (a keypoint on the wall beside a person shares a cell
+    with the person's edge but not its depth). A cell that straddles a depth edge has no reduced depth, so a
+    keypoint on a mover's silhouette gets no verdict from it; with ``reach`` > 0 such a keypoint takes it from a
+    region cell up to ``reach`` cells away whose depth is its own (ours, ``RegionConfig.edge_cells``).
+    """
+    h, w = small.shape
+    zc = small[r, c]
+    with np.errstate(invalid="ignore"):
+        out = region[r, c] & (zc > 0) & ~(np.abs(z - zc) > 2 * rel * zc)
+    edge = zc <= 0  # the keypoint's cell straddles a depth edge (reduce_depth gave it no reading)
+    if reach <= 0 or not edge.any():
+        return out
+    for dr in range(-reach, reach + 1):
+        for dc in range(-reach, reach + 1):
+            if dr == 0 and dc == 0:
+                continue
+            rr, cc = np.clip(r + dr, 0, h - 1), np.clip(c + dc, 0, w - 1)
+            zn = small[rr, cc]
+            with np.errstate(invalid="ignore"):
+                out |= edge & region[rr, cc] & (zn > 0) & ~(np.abs(z - zn) > 2 * rel * zn)
+    return out
 
 
 def splat(uv: np.ndarray, flags: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:

@@ -45,7 +45,7 @@ from .multiframe import eroded_depth, free_space_test, grid_points, vanished_tes
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
 from .room_depth import RoomDepth, reference_grid, room_labels, room_points
-from .regions import cells_at, depth_continuity, grow_regions, prior_on_fresh_surfaces, splat, supported_regions, surface_segments, whole_surfaces
+from .regions import cells_at, depth_continuity, grow_regions, on_region, prior_on_fresh_surfaces, splat, supported_regions, surface_segments, whole_surfaces
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
 from .temporal import MovingMapPoints, warp_region
@@ -691,12 +691,8 @@ def regions_stage(w: FrameWork) -> None:
         region = whole_surfaces(region, w.surface_grid(), w._cache["surface_cells"], cfg.surface_share)
     w.grid_region = region
     r, c, inside = cells_at(w.uv, factor, shape)
-    # a keypoint takes its cell's verdict when it lies on the cell's surface (a keypoint on the wall
-    # beside a person shares a cell with the person's edge but not its depth)
-    zc = small[r, c]
-    with np.errstate(invalid="ignore"):
-        same = (zc > 0) & ~(np.abs(w.z - zc) > 2 * cfg.continuity_rel * zc)
-    w.stages["regions"] = inside & region[r, c] & same
+    # a keypoint takes its cell's verdict when it lies on the cell's surface (on_region)
+    w.stages["regions"] = inside & on_region(region, small, r, c, w.z, cfg.continuity_rel, cfg.edge_cells)
     if region.any():
         H, W = w.shape
         full = cv2.resize(region.astype(np.uint8), (shape[1] * factor, shape[0] * factor), interpolation=cv2.INTER_NEAREST)

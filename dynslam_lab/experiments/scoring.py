@@ -30,6 +30,8 @@ out is counted as right. Only false positives on things that never move lower it
 from the nearest instance moving in that frame (``FP_DISTANCE_EDGES_PX``: the outline within 4 px, where a
 corner on an occluding contour moves with the mover though its pixel centre is on the background; 4-12 px;
 12-40 px; farther, where a whole static region was judged moving), after those on movers at rest.
+``fn_by_kind`` splits the misses the same way from the inside: a keypoint on a moving instance within 4 px of
+its outline (the silhouette, whose cell of the reduced depth straddles the depth edge) or deeper inside.
 """
 
 from __future__ import annotations
@@ -43,12 +45,15 @@ import numpy as np
 from ..dynamic.oracle import moving_mask, truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
 
-__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "FP_DISTANCE_EDGES_PX", "FP_KINDS"]
+__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS"]
 
 #: Bin edges (px) of a false positive's distance from the nearest moving instance (``KeypointScorer.fp_by_kind``).
 FP_DISTANCE_EDGES_PX = (4.0, 12.0, 40.0)
 #: The kinds of ``KeypointScorer.fp_by_kind``, in order: movers at rest, then the distance bins.
 FP_KINDS = ("at rest", "< 4 px", "4-12 px", "12-40 px", "> 40 px")
+#: The kinds of ``KeypointScorer.fn_by_kind``: missed keypoints within the first edge of ``FP_DISTANCE_EDGES_PX``
+#: of their moving instance's outline (inside it), and deeper.
+FN_KINDS = ("silhouette < 4 px", "inside")
 
 
 @dataclass
@@ -143,6 +148,7 @@ class KeypointScorer:
     moving_instances: set = field(default_factory=set)  # instances that moved in some frame of the run
     fp_by_place: Counter = field(default_factory=Counter)  # (instance id, distance bin) -> false positives
     fp_by_stage: Counter = field(default_factory=Counter)  # stage that flagged them (the table's reason) -> false positives
+    fn_by_kind: Counter = field(default_factory=Counter)  # FN_KINDS -> missed keypoints
 
     @property
     def fp_at_rest(self) -> int:
@@ -174,6 +180,11 @@ class KeypointScorer:
             self.score = self.score + s
             self.moving_instances.update(int(i) for i in (frame.moving_ids or ()))
             fp = np.asarray(result.dynamic, bool) & ~truth
+            fn = truth & ~np.asarray(result.dynamic, bool)
+            if fn.any():
+                inner = cv2.distanceTransform(moving_mask(frame).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                edge = values_at(inner, np.asarray(result.uv)[fn], outside=0.0) < FP_DISTANCE_EDGES_PX[0]
+                self.fn_by_kind.update({FN_KINDS[0]: int(edge.sum()), FN_KINDS[1]: int((~edge).sum())})
             if fp.any():
                 uv_fp = np.asarray(result.uv)[fp]
                 ids = values_at(frame.instance_mask, uv_fp, outside=0)

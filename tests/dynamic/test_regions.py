@@ -13,6 +13,7 @@ from dynslam_lab.dynamic.regions import (
     crease_continuity,
     depth_continuity,
     grow_regions,
+    on_region,
     prior_on_fresh_surfaces,
     splat,
     supported_regions,
@@ -284,3 +285,27 @@ def test_convex_edges_keep_an_object_whole_and_concave_ones_cut_it_from_the_floo
     _, split = continuity_components(zz > 0, (depth_continuity(zz, 0.04)[0] & crease_continuity(zz, GRID, 35.0, False)[0],
                                               depth_continuity(zz, 0.04)[1] & crease_continuity(zz, GRID, 35.0, False)[1]))
     assert len(np.unique(np.r_[split[inner_f], split[inner_t]])) == 2  # without the convexity rule the edge cuts it
+
+
+def test_a_keypoint_on_a_silhouette_takes_the_verdict_of_the_region_cell_at_its_depth():
+    # reduced depth: a mover at 2 m in columns 2-3, the wall at 4 m elsewhere, column 4 straddles the edge (0)
+    small = np.full((5, 8), 4.0, np.float32)
+    small[:, 2:4] = 2.0
+    small[:, 4] = 0.0
+    region = np.zeros((5, 8), bool)
+    region[:, 2:4] = True  # the mover's cells
+    r = np.array([2, 2, 2, 2, 2])
+    c = np.array([3, 4, 4, 5, 1])
+    # inside the region; on the edge cell at the mover's depth; on the edge cell at the wall's depth;
+    # on the wall beside the edge cell; on the wall beside the mover (its own cell has a reading)
+    z = np.array([2.02, 1.98, 4.0, 4.0, 2.0])
+    own = on_region(region, small, r, c, z, 0.04)
+    assert own.tolist() == [True, False, False, False, False]
+    near = on_region(region, small, r, c, z, 0.04, reach=1)
+    assert near.tolist() == [True, True, False, False, False]
+    # two cells away the edge keypoint needs reach 2
+    c2 = np.array([5]); small2 = small.copy(); small2[:, 5] = 0.0
+    assert not on_region(region, small2, np.array([2]), c2, np.array([2.0]), 0.04, reach=1)[0]
+    assert on_region(region, small2, np.array([2]), c2, np.array([2.0]), 0.04, reach=2)[0]
+    with pytest.raises(ValueError, match="edge_cells"):
+        RegionConfig(edge_cells=5)

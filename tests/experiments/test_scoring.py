@@ -62,3 +62,16 @@ def test_false_positives_are_split_by_distance_from_the_moving_outline():
     alone(SimpleNamespace(instance_mask=mask, moving_ids=set(), instance_classes={}),
           SimpleNamespace(uv=uv[:2], dynamic=np.ones(2, bool), timings_ms={}))
     assert alone.fp_by_kind["> 40 px"] == 2
+
+
+def test_misses_are_split_into_the_silhouette_and_the_inside():
+    mask = np.zeros((30, 100), np.int32)
+    mask[:, 20:40] = 1  # a mover, columns 20-39
+    # inside the mover: 1 px, 3 px, 6 px and 10 px from its outline (distance to the nearest outside pixel,
+    # columns 19 or 40); then a keypoint on the room
+    uv = np.array([[20.0, 15.0], [37.0, 15.0], [25.0, 15.0], [29.0, 15.0], [60.0, 15.0]])
+    scorer = KeypointScorer()
+    frame = SimpleNamespace(instance_mask=mask, moving_ids={1}, instance_classes={})
+    scorer(frame, SimpleNamespace(uv=uv, dynamic=np.array([False, False, False, True, False]), timings_ms={}))
+    assert (scorer.score.tp, scorer.score.fn) == (1, 3)
+    assert scorer.fn_by_kind == {"silhouette < 4 px": 2, "inside": 1}
