@@ -280,9 +280,7 @@ def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int) -> Local
     """``kf`` and its ``window - 1`` best covisible keyframes, all their points, and at most ``max_fixed``
     other keyframes (those observing most of the points) held fixed; None without points."""
     local = [kf.id] + mp.best_covisibles(kf.id, window - 1)
-    pts = np.concatenate([mp.keyframes[k].map_point_ids for k in local])
-    pts = np.unique(pts[pts >= 0])
-    pts = pts[mp.alive[pts]]
+    pts = mp.points_of(local)
     if len(pts) == 0:
         return None
     o_kf, o_pt, o_kp = mp.observations_of(pts)

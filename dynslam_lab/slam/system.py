@@ -427,10 +427,7 @@ class System:
         if tr.state in (TrackState.OK, TrackState.RELOCALIZED) and tr.last is not None and tr.last.T_w_c is not None:
             T_pred = se3_inv(tr.last.T_w_c) if tr.velocity is None else tr.predict_pose(timestamp)
         poses = {ts: self.map.keyframe_pose(ref) @ T_ref_c for ts, ref, T_ref_c in self._anchors[-self.screener.history_length:]}
-        kf_ids = [k for k in tr.local_kf_ids if k in self.map.keyframes]
-        ids = np.concatenate([self.map.keyframes[k].map_point_ids for k in kf_ids]) if kf_ids else np.zeros(0, np.int64)
-        ids = np.unique(ids[ids >= 0])
-        ids = ids[self.map.alive[ids]]
+        ids = self.map.points_of([k for k in tr.local_kf_ids if k in self.map.keyframes])
         return ScreeningContext(T_pred, poses, ids, self.map.xyz[ids], self.map.descriptors[ids], feats.descriptors, feats.octave,
                                 self.config.orb.scale_factor)
 

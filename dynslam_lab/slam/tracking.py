@@ -676,11 +676,7 @@ class Tracker:
             best = local[0]
             self.ref_kf = mp.keyframes[best]
         self.local_kf_ids = chosen
-        if not chosen:
-            return np.zeros(0, np.int64)
-        pts = np.concatenate([mp.keyframes[k].map_point_ids for k in chosen])
-        pts = np.unique(pts[pts >= 0])
-        return pts[mp.alive[pts]]
+        return mp.points_of(chosen)
 
     def track_local_map(self, frame: SlamFrame) -> int:
         """Project the local map into the frame, search, refine; returns the inlier count."""

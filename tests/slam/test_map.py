@@ -246,3 +246,23 @@ def test_random_map_edits_keep_the_index_equal_brute_force(monkeypatch, min_rows
         else:  # a query between edits fills the covisibility cache
             mp.covisibility(int(rng.choice(kfs)))
         _check_index(mp, rng)
+
+
+def test_points_of_keyframes_are_the_sorted_unique_alive_ids():
+    rng = np.random.default_rng(5)
+    mp = Map()
+    a = _kf(mp, 300)
+    ids = mp.add_points(rng.normal(size=(300, 3)) + [0, 0, 3], np.zeros((300, 32), np.uint8), a, np.arange(300))
+    kfs = [a]
+    for _ in range(4):  # keyframes seeing random subsets of the points (shared ids, unmatched keypoints)
+        k = _kf(mp, 200)
+        k.map_point_ids[:] = np.where(rng.random(200) < 0.3, -1, rng.choice(ids, 200))
+        kfs.append(k)
+    mp.remove_points(ids[rng.choice(300, 40, replace=False)])  # culled points leave every keyframe
+    b_ids = [kfs[1].id, kfs[3].id, a.id]
+    ref = np.concatenate([mp.keyframes[k].map_point_ids for k in b_ids])
+    ref = np.unique(ref[ref >= 0])
+    ref = ref[mp.alive[ref]]
+    got = mp.points_of(b_ids)
+    assert np.array_equal(got, ref) and got.dtype.kind == "i"
+    assert mp.points_of([]).shape == (0,)
