@@ -13,7 +13,7 @@ __all__ = ["FILES", "SCHEMA_VERSION", "STAGES", "RunContents", "RunWriter", "rea
            "OutputFolder", "OutputFolderError", "FolderLockedError", "atomic_write", "read_marker", "check_output_file",
            "RunRecorder", "run_sequence", "RunInterrupted", "RunStopped"]
 
-_RUNNER = ("RunRecorder", "run_sequence", "RunInterrupted", "RunStopped", "FLUSH_EVERY")
+_RUNNER = ("RunRecorder", "run_sequence", "RunInterrupted", "RunStopped", "FLUSH_EVERY", "FLUSH_COST_RATIO")
 
 
 def __getattr__(name: str):

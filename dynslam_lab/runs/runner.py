@@ -8,7 +8,9 @@ data, an empty detection cache), that error would repeat on every frame: the run
 with :class:`RunStopped` naming it.
 
 Everything computed so far is written after the first frame and then every ``flush_every``
-frames (10), ``summary.json`` last, listing each file with its size and SHA-256; it says
+frames (10; later while writing would cost more than ``1 / flush_cost_ratio`` of the time since the last
+write: the files grow with the run, and on a 1,500-frame run a write every 10 frames took 8.5 % of the
+time), ``summary.json`` last, listing each file with its size and SHA-256; it says
 ``complete: true`` only after the last frame, the evaluation and the dense map. Ctrl-C (or any
 error) stops the run cleanly: the files are written once more as they stand, ``summary.json``
 says ``complete: false`` and ``state: "interrupted"`` with the frames done, and
@@ -41,12 +43,16 @@ from ..threads import blas_single_thread
 from .folder import OutputFolder
 from .layout import FILES, STAGES, RunWriter
 
-__all__ = ["run_sequence", "RunRecorder", "RunInterrupted", "RunStopped", "FLUSH_EVERY", "REPEATED_ERROR_FRAMES"]
+__all__ = ["run_sequence", "RunRecorder", "RunInterrupted", "RunStopped", "FLUSH_EVERY", "FLUSH_COST_RATIO",
+           "REPEATED_ERROR_FRAMES"]
 
 log = logging.getLogger(__name__)
 
 #: Frames between two writes of the run folder (after the first frame's).
 FLUSH_EVERY = 10
+#: A write waits (by whole ``FLUSH_EVERY`` steps) until the frames since the last one took at least this
+#: many times as long as that write: writes cost at most ~1/20 of a run however long it grows.
+FLUSH_COST_RATIO = 20.0
 #: When this many first frames all fail with the same error, the run stops.
 REPEATED_ERROR_FRAMES = 5
 
@@ -265,6 +271,7 @@ def run_sequence(
     force: bool = False,
     prefetch: PrefetchConfig = PrefetchConfig(),
     extract_ahead: bool = True,
+    flush_cost_ratio: float = FLUSH_COST_RATIO,
 ) -> dict:
     """Run ``system`` over ``sequence`` and write the run folder ``outdir``.
 
@@ -278,7 +285,9 @@ def run_sequence(
     max_frames : process only the first frames.
     progress : show a tqdm progress bar.
     save_labels : write each frame's keypoint table to ``labels/``.
-    flush_every : write all outputs after the first frame and then every this many frames.
+    flush_every : write all outputs after the first frame and then every this many frames, ...
+    flush_cost_ratio : ... once the frames since the last write took at least this many times as long as
+        that write did (else at the next multiple of ``flush_every``); 0 = every ``flush_every`` frames.
     on_frame : called as ``on_frame(frame, result)`` after each processed frame (scores,
         notebooks).
     force : replace a previous run folder at ``outdir`` (recognised by its marker; a folder
@@ -308,6 +317,8 @@ def run_sequence(
         raise ValueError(f"{sequence.root}: nothing to run (max_frames={max_frames})")
     if flush_every < 1:
         raise ValueError(f"flush_every must be >= 1 frame, got {flush_every}")
+    if not flush_cost_ratio >= 0:
+        raise ValueError(f"flush_cost_ratio must be >= 0, got {flush_cost_ratio}")
     if system.screener is not None:
         system.screener.reset()
     with OutputFolder(outdir, kind="run", force=force) as folder:
@@ -318,6 +329,7 @@ def run_sequence(
         try:
             with blas_single_thread(), bar, FramePrefetcher(_PreparingSequence(sequence, system) if extract_ahead else sequence, n, prefetch) as frames:
                 t_frame = time.perf_counter()
+                t_flushed, flush_s = t_frame, 0.0  # the last write's end and duration
                 for item in frames:  # frames read ahead on the other core; a bad one arrives as its error
                     i, frame = item.index, item.frame
                     try:
@@ -341,9 +353,13 @@ def run_sequence(
                         on_frame(frame, res)
                     bar.set_postfix(state=res.state, kf=len(system.map.keyframes), lost=len(system.lost_frames), refresh=False)
                     bar.update()
-                    if i == 0 or (i + 1) % flush_every == 0:
+                    if i == 0 or ((i + 1) % flush_every == 0
+                                  and time.perf_counter() - t_flushed >= flush_cost_ratio * flush_s):
                         # no waiting for the loop closer's worker here: the frame loop goes on
+                        t0 = time.perf_counter()
                         rec.write(system, rec.summary(sequence, system, n, complete=False, wait=False), wait=False)
+                        t_flushed = time.perf_counter()
+                        flush_s = t_flushed - t0
                     t_frame = time.perf_counter()
             return _finish(sequence, system, rec, n, t_run)
         except KeyboardInterrupt:

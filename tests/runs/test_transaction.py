@@ -127,7 +127,7 @@ def tripwire(monkeypatch):
 def test_ctrl_c_at_five_random_points_leaves_a_true_partial_run(seqdir, tmp_path, tripwire):
     """Item 2: interrupted anywhere (frames, a flush half-way, the dense map), the folder's
     summary.json is true to its contents and says how far the run got; --force redoes it."""
-    _run(seqdir, tmp_path / "dry", flush_every=4)
+    _run(seqdir, tmp_path / "dry", flush_every=4, flush_cost_ratio=0.0)  # a write every 4 frames, whatever it costs
     events = list(tripwire.events)
     frames = [i for i, e in enumerate(events) if e == "frame"]
     assert events.index("write:trajectory.txt") < frames[1]  # the first flush follows the first frame
@@ -142,7 +142,7 @@ def test_ctrl_c_at_five_random_points_leaves_a_true_partial_run(seqdir, tmp_path
         tripwire.events, tripwire.target = [], target
         out = tmp_path / f"int{k}"
         with pytest.raises(RunInterrupted, match=r"interrupted after \d+ of 12 frames") as exc:
-            _run(seqdir, out, flush_every=4)
+            _run(seqdir, out, flush_every=4, flush_cost_ratio=0.0)
         s = json.loads((out / "summary.json").read_text())
         assert verify_run(out) == [], (events[target], verify_run(out))
         assert s["complete"] is False and s["state"] == "interrupted" and s["processed"] == exc.value.summary["processed"]
@@ -150,7 +150,7 @@ def test_ctrl_c_at_five_random_points_leaves_a_true_partial_run(seqdir, tmp_path
         assert "trajectory.txt" in s["files"] and "map.ply" not in s["files"]
         assert not [p for p in out.rglob("*.tmp")]  # no temporary file left behind
     tripwire.target = None
-    assert _run(seqdir, out, flush_every=4, force=True)["complete"] and verify_run(out) == []
+    assert _run(seqdir, out, flush_every=4, flush_cost_ratio=0.0, force=True)["complete"] and verify_run(out) == []
 
 
 def _env():

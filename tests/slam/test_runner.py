@@ -149,3 +149,33 @@ def test_flushes_during_a_run_do_not_wait_for_the_loop_closer(seqdir, tmp_path):
                            on_frame=lambda frame, res: processed.append(frame.index))
     assert summary["complete"] and len(processed) == 23
     assert waits and all(n == 23 for n in waits)  # after the last frame only, not at the 12 flushes
+
+
+def test_writes_during_a_run_wait_while_they_would_cost_more_than_their_share(seqdir, tmp_path, monkeypatch):
+    """A write every ``flush_every`` frames, unless the frames since the last one took less than
+    ``flush_cost_ratio`` times that write (the files grow with the run: long runs write less often)."""
+    import time as _time
+
+    from dynslam_lab.runs import runner
+
+    plain = runner.RunRecorder.write
+    during = []
+
+    def slow_write(self, system, summary, final=False, wait=True):
+        if not wait:  # the writes during the run (the last one waits for the loop closer)
+            during.append(len(self.rows))
+            _time.sleep(0.25)
+        return plain(self, system, summary, final=final, wait=wait)
+
+    monkeypatch.setattr(runner.RunRecorder, "write", slow_write)
+    seq = TumSequence(seqdir, camera="default")
+    run_sequence(seq, tmp_path / "every", build_pipeline(Config(), seq.camera), progress=False, flush_every=2,
+                 flush_cost_ratio=0.0)
+    # after frame 0, then after frames 1, 3, ..., 23 (the bad frame 12 has a row too, and is not a turn)
+    assert during == [1] + [k + 1 for k in range(1, 24, 2)]
+    during.clear()
+    summary = run_sequence(seq, tmp_path / "throttled", build_pipeline(Config(), seq.camera), progress=False,
+                           flush_every=2)
+    # each write costs 0.25 s: the next one waits until the frames since took 20 x 0.25 = 5 s, more than the
+    # whole of these 24 frames, so the first frame's write is the only one before the last
+    assert summary["complete"] and during[0] == 1 and len(during) <= 2
