@@ -34,9 +34,10 @@ def moving_mask(frame) -> np.ndarray | None:
     return np.isin(frame.instance_mask, np.array(sorted(ids), dtype=np.int64))
 
 
-def truth_dynamic(frame, uv: np.ndarray) -> np.ndarray | None:
-    """``(N,)`` bool truth of the keypoints ``uv`` (see the module docstring), or None."""
-    mask = moving_mask(frame)
+def truth_dynamic(frame, uv: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray | None:
+    """``(N,)`` bool truth of the keypoints ``uv`` (see the module docstring), or None. ``mask``: the
+    frame's :func:`moving_mask` when the caller has it already (else it is made here)."""
+    mask = moving_mask(frame) if mask is None else mask
     if mask is None:
         return None
     return values_at(mask, check_uv(uv), outside=False).astype(bool)

@@ -173,7 +173,8 @@ class KeypointScorer:
 
     def __call__(self, frame, result) -> None:
         self.screen_ms.append(float(result.timings_ms.get("screen", float("nan"))))
-        truth = truth_dynamic(frame, result.uv)
+        moving = moving_mask(frame)  # the truth's own mask (a-priori classes without moving_ids), made once
+        truth = truth_dynamic(frame, result.uv, mask=moving)
         if truth is not None:
             s = score_keypoints(result.dynamic, truth)
             self.per_frame.append(s)
@@ -182,14 +183,13 @@ class KeypointScorer:
             fp = np.asarray(result.dynamic, bool) & ~truth
             fn = truth & ~np.asarray(result.dynamic, bool)
             if fn.any():
-                inner = cv2.distanceTransform(moving_mask(frame).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
                 edge = values_at(inner, np.asarray(result.uv)[fn], outside=0.0) < FP_DISTANCE_EDGES_PX[0]
                 self.fn_by_kind.update({FN_KINDS[0]: int(edge.sum()), FN_KINDS[1]: int((~edge).sum())})
             if fp.any():
                 uv_fp = np.asarray(result.uv)[fp]
                 ids = values_at(frame.instance_mask, uv_fp, outside=0)
                 self.fp_by_instance.update(int(i) for i in ids[ids > 0])
-                moving = moving_mask(frame)  # the truth's own mask (a-priori classes without moving_ids)
                 if moving.any():
                     dist = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
                     d = values_at(dist, uv_fp, outside=np.inf)
