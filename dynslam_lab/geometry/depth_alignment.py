@@ -32,6 +32,11 @@ keypoints, not pixels) nothing changes. Normals come from central differences of
 a pair with a depth jump, a missing neighbour, or a residual beyond ``max_distance`` metres is left
 out; the grid of ``stride`` pixels keeps a frame to ~5,000 points. Lens distortion is ignored
 (synthetic and undistorted input).
+
+A plane's depth leaves the slide along it free. :class:`PhotometricTerm` adds the intensity residuals of
+hybrid RGB-D odometry (Steinbruecker et al. 2011): where the image has an edge the slide shows there; tracking
+runs it coarse to fine on reduced images (:func:`image_level`, :func:`photometric_term`) to start a
+dense-tracked frame from the pose it gives (``TrackingConfig.dense_photometric_sigma``).
 """
 
 from __future__ import annotations
@@ -46,7 +51,8 @@ from .projection import projection_jacobian
 from .se3 import make_pose, skew, so3_exp, so3_log
 
 __all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
-           "DenseAlignment", "align_depth", "reduced_depth_points"]
+           "DenseAlignment", "align_depth", "reduced_depth_points", "ImageLevel", "image_level", "PhotometricTerm",
+           "photometric_term"]
 
 
 @dataclass
@@ -332,6 +338,121 @@ class ReprojectionTerm:
         return e.reshape(-1), J.reshape(-1, 6)
 
 
+@dataclass
+class ImageLevel:
+    """A grey image reduced by ``scale`` (an integer: 2 = half size, area average) for the photometric term: the
+    image ``I (h, w)`` float32, its gradients ``gx, gy`` (grey levels per pixel of this level, Sobel / 8), its
+    depth ``z (h, w)`` (m, nan where a block of the full-resolution depth is missing or spans a depth edge)
+    and the camera of the level."""
+
+    I: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    z: np.ndarray
+    camera: PinholeCamera
+    scale: int
+
+
+def image_level(gray: np.ndarray, depth: np.ndarray, camera: PinholeCamera, scale: int,
+                max_depth_spread: float = 0.03) -> ImageLevel:
+    """The :class:`ImageLevel` of a grey image ``gray (H, W)`` and its depth ``depth (H, W)`` (m, 0 = none) at
+    ``scale``. A level pixel's depth is the mean of its ``scale x scale`` block of depth pixels when all of them
+    have depth and they span at most ``max_depth_spread`` m per m of depth (a block across a silhouette has no
+    one depth to warp its intensity with)."""
+    s = int(scale)
+    h, w = gray.shape[0] // s, gray.shape[1] // s
+    I = gray[: h * s, : w * s].astype(np.float32)
+    if s > 1:
+        I = cv2.resize(I, (w, h), interpolation=cv2.INTER_AREA)
+    gx = cv2.Sobel(I, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(I, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+    d = np.asarray(depth, np.float32)[: h * s, : w * s]
+    d = np.where(np.isfinite(d) & (d > 0), d, np.nan).reshape(h, s, w, s)
+    lo, hi, mean = d.min(axis=(1, 3)), d.max(axis=(1, 3)), d.mean(axis=(1, 3))
+    z = np.where(hi - lo <= max_depth_spread * mean, mean, np.nan)  # nan blocks stay nan (comparisons are False)
+    return ImageLevel(I, gx, gy, z, camera.scaled(1.0 / s), s)
+
+
+@dataclass
+class PhotometricTerm:
+    """Intensity residuals of a frame's pixels against an earlier ("reference") image, the photometric half of
+    the hybrid RGB-D odometry of Steinbruecker et al. (2011) (Park et al. 2017 use the same pair of terms)::
+
+        e_j = (I_r(pi(T_r_c X_j)) - c_j) / sigma
+
+    ``X_j (M, 3)`` the frame's pixels with depth (camera frame), ``c_j`` their intensities, ``I_r`` the
+    reference's image at the same level (bilinear), ``pi`` its projection. With ``Y = T_r_c X`` and the step of
+    :func:`align_depth` (``dY / d omega = R_rc [p]_x``, ``dY / d tau = -R_rc``, ``p = X - t``, as for
+    :class:`DenseTerm`) and ``a = R_rc^T (d pi / d Y)^T grad I_r``::
+
+        d e / d omega = (a x p) / sigma,     d e / d tau = -a / sigma
+
+    It fixes what a plane's depth leaves free (a slide along a plain wall, the turn about its normal) wherever
+    the image has an edge: a poster's border, the line where the wall meets the floor."""
+
+    X: np.ndarray
+    c: np.ndarray
+    ref: ImageLevel
+    T_r_w: np.ndarray
+    sigma: float
+
+    def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals ``(K,)`` of the samples that ``(R, t)`` (``T_c_w``) puts inside the reference image
+        (one pixel from its border), and their Jacobian ``(K, 6)``."""
+        _, e, J = self.evaluate(R, t)
+        return e, J
+
+    def evaluate(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`residuals` with the indices ``(K,)`` of the samples they belong to."""
+        R_r, t_r = self.T_r_w[:3, :3], self.T_r_w[:3, 3]
+        R_rc = R_r @ R.T
+        Y = self.X @ R_rc.T + (t_r - R_rc @ t)
+        cam, h, w = self.ref.camera, self.ref.I.shape[0], self.ref.I.shape[1]
+        z = Y[:, 2]
+        inv_z = 1.0 / np.where(z > 1e-6, z, 1.0)
+        u = cam.fx * Y[:, 0] * inv_z + cam.cx
+        v = cam.fy * Y[:, 1] * inv_z + cam.cy
+        idx = np.flatnonzero((z > 1e-6) & (u >= 0) & (u <= w - 2) & (v >= 0) & (v <= h - 2))
+        if len(idx) == 0:
+            return idx, np.zeros(0), np.zeros((0, 6))
+        maps = (u[idx].astype(np.float32).reshape(-1, 1), v[idx].astype(np.float32).reshape(-1, 1))
+        I, gx, gy = (cv2.remap(img, *maps, cv2.INTER_LINEAR).reshape(-1).astype(np.float64)
+                     for img in (self.ref.I, self.ref.gx, self.ref.gy))
+        iz, Yi = inv_z[idx], Y[idx]
+        # grad I_r times d pi / d Y, one row per sample
+        g = np.empty((len(idx), 3))
+        g[:, 0] = gx * cam.fx * iz
+        g[:, 1] = gy * cam.fy * iz
+        g[:, 2] = -(gx * cam.fx * Yi[:, 0] + gy * cam.fy * Yi[:, 1]) * iz * iz
+        a = g @ R_rc
+        p = self.X[idx] - t
+        J = np.empty((len(idx), 6))
+        J[:, :3] = np.cross(a, p) / self.sigma
+        J[:, 3:] = -a / self.sigma
+        return idx, (I - self.c[idx]) / self.sigma, J
+
+
+def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.ndarray, sigma: float,
+                     min_gradient: float = 2.0, max_samples: int = 3000, exclude: np.ndarray | None = None) -> PhotometricTerm | None:
+    """The :class:`PhotometricTerm` of a frame's level against the reference's: the frame's pixels with depth and
+    a gradient of at least ``min_gradient`` grey levels per pixel, the ``max_samples`` strongest, leaving out
+    ``exclude`` (``(h, w)`` bool at the level: pixels the screening judged dynamic). None with fewer than 20."""
+    mag = np.hypot(frame_level.gx, frame_level.gy)
+    ok = np.isfinite(frame_level.z) & (mag >= min_gradient)
+    if exclude is not None:
+        ok &= ~exclude[: ok.shape[0], : ok.shape[1]]
+    i, j = np.nonzero(ok)
+    if len(i) < 20:
+        return None
+    if len(i) > max_samples:
+        keep = np.argpartition(-mag[i, j], max_samples)[:max_samples]
+        i, j = i[keep], j[keep]
+    cam = frame_level.camera
+    z = frame_level.z[i, j].astype(np.float64)
+    X = np.stack([(j - cam.cx) / cam.fx * z, (i - cam.cy) / cam.fy * z, z], axis=1)
+    return PhotometricTerm(X, frame_level.I[i, j].astype(np.float64), ref_level, T_r_w, float(sigma))
+
+
 def depth_sigma(z: np.ndarray) -> np.ndarray:
     """Standard deviation (m) of a Kinect-like depth measurement at ``z`` m: 1 mm + 2 mm per m^2 (the
     quadratic growth of a disparity sensor's error, Khoshelham and Elberink 2012, rounded)."""
@@ -356,12 +477,14 @@ def median_distance(term: DenseTerm, R: np.ndarray, t: np.ndarray) -> tuple[floa
 
 
 def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber: float = 2.0,
-                tol_rad: float = 1e-5, tol_m: float = 1e-4, features: ReprojectionTerm | None = None) -> DenseAlignment:
+                tol_rad: float = 1e-5, tol_m: float = 1e-4, features: ReprojectionTerm | None = None,
+                photometric: PhotometricTerm | None = None) -> DenseAlignment:
     """Gauss-Newton on ``term`` (point-to-plane, and its prior when it has one) from ``T_start`` (world ->
     camera), each residual Huber-weighted at ``huber`` (whitened units). At most ``iterations`` steps, fewer
     once a step turns the camera by less than ``tol_rad`` and moves it by less than ``tol_m``. With
     ``features`` their reprojection residuals join the sum: the directions the planes leave free (a slide
-    along a wall and the floor) are then fixed by the features, not only by the prior."""
+    along a wall and the floor) are then fixed by the features, not only by the prior; with ``photometric``
+    (:class:`PhotometricTerm`) the image's edges fix them (hybrid RGB-D odometry)."""
     R, t = T_start[:3, :3].copy(), T_start[:3, 3].copy()
     d_start, _ = median_distance(term, R, t)
     for _ in range(iterations):
@@ -369,6 +492,9 @@ def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber
         if features is not None:
             e_f, J_f = features.residuals(R, t)
             e, J = np.concatenate([e, e_f]), np.vstack([J, J_f])
+        if photometric is not None:
+            e_p, J_p = photometric.residuals(R, t)
+            e, J = np.concatenate([e, e_p]), np.vstack([J, J_p])
         a = np.abs(e)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
         H = J.T @ (J * w[:, None])

@@ -60,6 +60,8 @@ class SlamFrame:
         for the dense depth term of tracking, or None.
     dynamic_region : ``(H, W)`` bool pixels the screening judged dynamic (its region, or the oracle's
         masks), left out of the dense depth term when ``tracking.dense_mask_region``; None without one.
+    gray_image : ``(H, W)`` uint8 the frame's grey image (the frame's own array) for the photometric term of
+        tracking (``tracking.dense_photometric_sigma``), or None.
     """
 
     index: int
@@ -74,6 +76,7 @@ class SlamFrame:
     T_w_c: np.ndarray | None = None
     depth_image: np.ndarray | None = None
     dynamic_region: np.ndarray | None = None
+    gray_image: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -137,6 +140,7 @@ def make_slam_frame(
         outlier=np.zeros(n, bool),
         depth_image=frame.depth,
         dynamic_region=_region_of(dynamic_region, frame.depth),
+        gray_image=frame.gray,
     )
 
 

@@ -68,6 +68,7 @@ class LocalMappingConfig:
     recent_age: int = 3  # keyframes a point stays "recent"; ORB-SLAM2: 3
     ba_window: int = 7  # keyframes optimised by local BA (current + best covisible); ours (ORB-SLAM2: all covisible)
     ba_max_fixed: int = 10  # fixed keyframes at most in local BA; ours (ORB-SLAM2: all)
+    ba_hold_min_obs: int = 30  # window keyframes observing fewer of the window's points than this keep their pose in local BA (a keyframe tracked by depth on a plain wall, with a handful of points, swings: loop_flat seed 6, 88 mm / 2.0 deg as tracked -> 219 mm / 5.6 deg after local BA); 30 as global_ba_min_observations; 0 = none held (ORB-SLAM2); ours, docs/tracking.md "Image edges on a plain wall"
     ba_iterations: int = 5  # Levenberg-Marquardt iterations per local BA round at most (2 rounds); ORB-SLAM2: 5 + 10
     ba_every: int = 1  # run local BA every this many keyframes; ours (1 = every keyframe)
     capped_ba_window: int = 3  # local BA window during a bad stretch of tracking (keyframe flood); ours
@@ -81,7 +82,7 @@ class LocalMappingConfig:
                      "fuse_neighbours", "recent_age", "kf_cull_min_obs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LocalMappingConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("ba_max_fixed", "cull_min_obs", "cull_age"):
+        for name in ("ba_max_fixed", "cull_min_obs", "cull_age", "ba_hold_min_obs"):
             if getattr(self, name) < 0:
                 raise ValueError(f"LocalMappingConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not self.fuse_radius > 0:
@@ -276,9 +277,10 @@ class LocalBAWindow:
     o_kp: np.ndarray
 
 
-def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int) -> LocalBAWindow | None:
+def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int, hold_min_obs: int = 0) -> LocalBAWindow | None:
     """``kf`` and its ``window - 1`` best covisible keyframes, all their points, and at most ``max_fixed``
-    other keyframes (those observing most of the points) held fixed; None without points."""
+    other keyframes (those observing most of the points) held fixed; the window's keyframes observing fewer
+    than ``hold_min_obs`` of the points held too; None without points."""
     local = [kf.id] + mp.best_covisibles(kf.id, window - 1)
     pts = mp.points_of(local)
     if len(pts) == 0:
@@ -289,6 +291,9 @@ def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int) -> Local
     fixed = [int(k) for k in outside[order][:max_fixed]]
     origin = min(mp.keyframes)
     fixed_set = set(fixed) | ({origin} if origin in local else set())
+    if hold_min_obs > 0:
+        n_obs = dict(zip(*np.unique(o_kf[np.isin(o_kf, local)], return_counts=True)))
+        fixed_set |= {k for k in local if n_obs.get(k, 0) < hold_min_obs}
     if not fixed_set:
         fixed_set = {min(local)}
     use = np.isin(o_kf, local + fixed)
@@ -302,7 +307,7 @@ def run_local_ba(mp: Map, kf: KeyFrame, camera: PinholeCamera, cfg: LocalMapping
     window ``capped_ba_window`` and ``capped_ba_iterations``."""
     window = cfg.capped_ba_window if capped else cfg.ba_window
     iterations = cfg.capped_ba_iterations if capped else cfg.ba_iterations
-    win = local_ba_window(mp, kf, window, cfg.ba_max_fixed)
+    win = local_ba_window(mp, kf, window, cfg.ba_max_fixed, cfg.ba_hold_min_obs)
     if win is None or not set(win.local) - win.fixed:  # no points, or a keyframe sharing none (nothing free)
         return {"ba_points": 0}
     kfs = {k: mp.keyframes[k] for k in set(win.local) | win.fixed}

@@ -87,7 +87,8 @@ from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
-from ..geometry.depth_alignment import DenseTerm, DepthGrid, DepthSource, fuse_depth_model, smooth_depth, vertex_normal_grid
+from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, ImageLevel, align_depth, fuse_depth_model,
+                                        image_level, photometric_term, smooth_depth, vertex_normal_grid)
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
@@ -167,6 +168,8 @@ class TrackingConfig:
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
     dense_max_distance: float = 0.05  # m, point-to-plane distance beyond which a depth sample has no association; ours
     dense_view_margin_px: float = -1.0  # px; >= 0: only the depth samples that the motion prediction puts at least this far inside the reference's image cost the association gate when left unassociated (a sample the reference never saw is no evidence; charged, such samples pull the pose towards no motion: loop_flat seed 8, a slide of 32 mm a frame tracked as 9); negative (the default): every sample, as before, because that pull also damps the velocity the motion prediction carries across a plain wall (16 px: loop_flat worst of 12 seeds 46.9 -> 40.4 mm, but 3 seeds over 20 mm instead of 1); ours, docs/tracking.md "Samples the last frame never saw"
+    dense_photometric_sigma: float = 4.0  # grey levels; > 0: a frame tracked with the dense term starts from (and is held to) the pose that aligns its image edges and depth to the last frame's, coarse to fine (hybrid RGB-D odometry, Steinbruecker et al. 2011), not the constant-velocity prediction: a plain wall's depth leaves a slide along it free (loop_flat seed 8: 20-30 mm of error a frame along the wall -> 0.1-3 mm); the residuals are whitened with this sigma; 0 = off (the depth term alone, as before); ours, docs/tracking.md "Image edges on a plain wall"
+    dense_photometric_scales: tuple[int, ...] = (4, 2)  # image reductions of the photometric alignment, coarse to fine; ours
     dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
@@ -187,6 +190,12 @@ class TrackingConfig:
         positive = ("bf", "th_depth", "motion_radius", "local_radius", "pnp_reproj_px", "max_depth",
                     "suspect_translation", "suspect_rotation_deg", "depth_sigma_0", "depth_sigma_scale",
                     "dense_max_distance", "dense_prior_translation", "dense_prior_rotation_deg", "dense_sigma_scale")
+        if not self.dense_photometric_sigma >= 0:
+            raise ValueError(f"TrackingConfig.dense_photometric_sigma must be >= 0, got {self.dense_photometric_sigma}")
+        scales = tuple(self.dense_photometric_scales)
+        if not scales or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in scales):
+            raise ValueError(f"TrackingConfig.dense_photometric_scales must be integers >= 1, got {self.dense_photometric_scales!r}")
+        object.__setattr__(self, "dense_photometric_scales", scales)  # a list from a TOML file becomes a tuple
         if self.dense_reference not in ("frame", "keyframes"):
             raise ValueError(f"TrackingConfig.dense_reference must be 'frame' or 'keyframes', got {self.dense_reference!r}")
         if self.dense_model_pose not in ("map", "tracked"):
@@ -314,6 +323,7 @@ class Tracker:
         self._kf_depth: dict[int, DepthSource] = {}
         self._last_depth: tuple[int, DepthSource] | None = None
         self._smoothed: dict[int, np.ndarray] = {}  # frame index -> depth image smoothed for the dense term (two kept)
+        self._levels: dict[tuple[int, int], ImageLevel] = {}  # (frame index, scale) -> image level of the photometric term (two frames kept)
         self.dense_model_sources = 0  # views fused into the last model (0: the last frame's grid, "frame")
         self.dense_fraction = 0.0
         # The low-texture options (far points, dense term) engage only while the screening judges the
@@ -591,6 +601,8 @@ class Tracker:
         T_pred = term.T_prior
         if self.velocity is not None:
             self.predicted_T_c_w = T_pred
+        if cfg.dense_photometric_sigma > 0:
+            T_pred = term.T_prior = self.photometric_prediction(frame, term)
         self._dense = term
         try:
             self._match_last_frame(frame, T_pred, 0)
@@ -603,6 +615,34 @@ class Tracker:
         self.dense_fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
         self.n_inliers = n
         return n >= cfg.dense_min_inliers and self.dense_fraction >= cfg.dense_min_fraction
+
+    def _image_level(self, frame: SlamFrame, scale: int) -> ImageLevel:
+        """``frame``'s :class:`~dynslam_lab.geometry.depth_alignment.ImageLevel` at ``scale`` (cached for the frame
+        being tracked, which is the next one's last frame)."""
+        key = (frame.index, scale)
+        if key not in self._levels:
+            self._levels = {k: v for k, v in self._levels.items() if k[0] > frame.index - 2}
+            self._levels[key] = image_level(frame.gray_image, frame.depth_image, self.camera, scale)
+        return self._levels[key]
+
+    def photometric_prediction(self, frame: SlamFrame, term: DenseTerm) -> np.ndarray:
+        """The pose ``T_c_w`` that aligns ``frame``'s image edges and depth to the last frame's (ours; the hybrid
+        term of Steinbruecker et al. 2011: :class:`~dynslam_lab.geometry.depth_alignment.PhotometricTerm` with
+        ``term``'s point-to-plane residuals and its prior), coarse to fine over ``dense_photometric_scales``, from
+        ``term``'s prior (the constant-velocity prediction). The prior itself when either frame has no image, or
+        no level has 20 pixels with an edge and depth."""
+        cfg, last = self.cfg, self.last
+        T = term.T_prior
+        if T is None or frame.gray_image is None or last is None or last.gray_image is None or last.T_w_c is None:
+            return T
+        T_r_w = se3_inv(last.T_w_c)
+        for scale in cfg.dense_photometric_scales:
+            lf, lr = self._image_level(frame, scale), self._image_level(last, scale)
+            exclude = self._dynamic_cells(frame, lf.I.shape, stride=scale)
+            photo = photometric_term(lf, lr, T_r_w, cfg.dense_photometric_sigma, exclude=exclude)
+            if photo is not None:
+                T = align_depth(term, T, iterations=10, photometric=photo).T_c_w
+        return T
 
     def _search_last(self, frame: SlamFrame, last: SlamFrame, lidx: np.ndarray, pids: np.ndarray, uv: np.ndarray,
                      z: np.ndarray, radius: float, ratio: float) -> Matches:

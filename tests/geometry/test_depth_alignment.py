@@ -3,6 +3,8 @@ Jacobian against finite differences, and the pose it recovers against the true o
 
 from __future__ import annotations
 
+import contextlib
+
 import cv2
 import numpy as np
 
@@ -11,7 +13,7 @@ from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp
 from dynslam_lab.slam import optimize as opt
 from dynslam_lab.datasets.kinect import DepthNoise, kinect_depth, nguyen_sigma
 from dynslam_lab.geometry.depth_alignment import (DenseTerm, DepthSource, ReprojectionTerm, align_depth, fuse_depth_model,
-                                                 smooth_depth, vertex_normal_grid)
+                                                 image_level, photometric_term, smooth_depth, vertex_normal_grid)
 from dynslam_lab.slam.optimize import Observations, optimize_pose
 
 CAM = CAMERA_PRESETS["default"]
@@ -31,6 +33,18 @@ def _depth(T_w_c: np.ndarray) -> np.ndarray:
             s = (c - n @ C) / (d_w @ n)
         z = np.where((s > 0) & (s < z), s, z)
     return np.where(np.isfinite(z), z, 0.0).astype(np.float32)
+
+
+@contextlib.contextmanager
+def _wall_and_floor_only():
+    """The room without its side wall (the wall ahead and the floor) inside the ``with`` block: depth cannot
+    see a slide along both."""
+    planes = list(PLANES)
+    PLANES[:] = [planes[0], planes[2]]
+    try:
+        yield
+    finally:
+        PLANES[:] = planes
 
 
 def _term(T_w_ref: np.ndarray, T_w_cur: np.ndarray, stride: int = 8) -> DenseTerm:
@@ -142,14 +156,10 @@ def test_reprojection_term_matches_opencv_and_finite_differences():
 def test_features_fix_the_slide_the_planes_leave_free():
     """The floor and the wall ahead only (no side wall): depth cannot see a slide along both; with a
     dozen feature matches joined to the alignment the slide is removed, without them it stays."""
-    planes = list(PLANES)
-    try:
-        PLANES[:] = [planes[0], planes[2]]
+    with _wall_and_floor_only():
         T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
         T_w_cur = make_pose(so3_exp([0.01, 0.08, -0.01]), [0.04, -0.02, 0.05])
         term = _term(T_w_ref, T_w_cur)
-    finally:
-        PLANES[:] = planes
     T_true = se3_inv(T_w_cur)
     slid = make_pose(np.eye(3), T_true[:3, :3] @ np.array([0.03, 0.0, 0.0])) @ T_true  # 3 cm along the wall and the floor
     term.T_prior, term.prior_sigma = slid, (0.05, 2.0)
@@ -270,14 +280,10 @@ def test_samples_the_reference_never_saw_do_not_pull_the_pose_back():
     them fall outside: from a start 3 cm back, the pose stops 6.5 mm short of the prior, where the samples it would lose outweigh it
     (`loop_flat` seed 8: 32 mm a frame tracked as 9). Charged only where the prior puts them well inside
     the reference's image (``DenseTerm.in_view``), the pose returns to the truth."""
-    planes = list(PLANES)
-    try:
-        PLANES[:] = [planes[0], planes[2]]
+    with _wall_and_floor_only():
         T_w_ref = make_pose(np.eye(3), [0.0, 0.0, 0.0])
         T_w_cur = make_pose(np.eye(3), [0.06, 0.0, 0.0])
         term = _term(T_w_ref, T_w_cur)
-    finally:
-        PLANES[:] = planes
     T_true = se3_inv(T_w_cur)
     term.T_prior, term.prior_sigma = T_true, (0.02, 1.0)
     none = Observations.from_keypoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0), 40.0, 1.2, z_sigma=np.zeros(0))
@@ -299,3 +305,93 @@ def test_samples_the_reference_never_saw_do_not_pull_the_pose_back():
         slide[name] = (T @ T_w_cur)[:3, 3]
     assert np.linalg.norm(slide["all"]) > 0.005  # held back towards the reference (6.5 mm)
     assert np.linalg.norm(slide["in view"]) < 0.001
+
+
+# --- the photometric term (hybrid RGB-D odometry) -----------------------------------------------------------
+
+def _image(T_w_c: np.ndarray) -> np.ndarray:
+    """Grey image of the room corner seen from ``T_w_c``: plain walls (120) and floor (90) with one poster
+    (200) on the wall ahead, x in [-0.4, 0.3] m, y in [-0.5, 0.2] m; blurred 1.5 px as a lens would."""
+    z = _depth(T_w_c).astype(np.float64)
+    X_c = CAM.backproject_depth(z)
+    X_w = X_c @ T_w_c[:3, :3].T + T_w_c[:3, 3]
+    img = np.full(z.shape, 120.0)
+    img[np.abs(X_w[..., 1] - 1.0) < 1e-6] = 90.0  # the floor, y = 1
+    poster = (np.abs(X_w[..., 2] - 3.0) < 1e-6) & (X_w[..., 0] > -0.4) & (X_w[..., 0] < 0.3) \
+        & (X_w[..., 1] > -0.5) & (X_w[..., 1] < 0.2)
+    img[poster] = 200.0
+    return cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.5)
+
+
+def _photo(T_w_ref: np.ndarray, T_w_cur: np.ndarray, scale: int):
+    ref = image_level(_image(T_w_ref), _depth(T_w_ref), CAM, scale)
+    cur = image_level(_image(T_w_cur), _depth(T_w_cur), CAM, scale)
+    return photometric_term(cur, ref, se3_inv(T_w_ref), sigma=2.0)
+
+
+def test_image_level_depth_is_the_block_mean_and_none_across_a_depth_edge():
+    depth = np.full((8, 8), 2.0, np.float32)
+    depth[:, 4:] = 3.0
+    depth[0, 0] = 0.0  # a missing reading
+    depth[4:, 2:4] = np.array([[2.0, 2.02]] * 4)
+    lvl = image_level(np.zeros((8, 8), np.uint8), depth, CAM, 2)
+    assert lvl.I.shape == (4, 4) and lvl.camera.fx == CAM.fx / 2
+    assert np.isnan(lvl.z[0, 0])  # the block with the missing reading
+    assert lvl.z[0, 1] == 2.0 and lvl.z[3, 3] == 3.0
+    assert lvl.z[2, 1] == np.float32(2.01)  # 2 cm over 2 m: within 3 cm per m
+    wide = depth.copy()
+    wide[4:, 3] = 2.2  # 20 cm across the block: a depth edge
+    assert np.isnan(image_level(np.zeros((8, 8), np.uint8), wide, CAM, 2).z[2, 1])
+
+
+def test_photometric_jacobian_matches_finite_differences():
+    """The chain rule of :class:`PhotometricTerm` against central differences, on a reference image whose
+    gradient is known exactly (a smooth wave, its gradient given in closed form, not by Sobel)."""
+    T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
+    T_w_cur = make_pose(so3_exp([0.01, 0.07, -0.01]), [0.03, -0.02, 0.05])
+    ref = image_level(np.zeros((CAM.height, CAM.width), np.uint8), _depth(T_w_ref), CAM, 2)
+    v, u = np.mgrid[0 : ref.I.shape[0], 0 : ref.I.shape[1]].astype(np.float64)
+    ref.I = (100 + 50 * np.sin(u / 9.0) * np.cos(v / 7.0)).astype(np.float32)
+    ref.gx = (50 / 9.0 * np.cos(u / 9.0) * np.cos(v / 7.0)).astype(np.float32)
+    ref.gy = (-50 / 7.0 * np.sin(u / 9.0) * np.sin(v / 7.0)).astype(np.float32)
+    cur = image_level(_image(T_w_cur), _depth(T_w_cur), CAM, 2)
+    photo = photometric_term(cur, ref, se3_inv(T_w_ref), sigma=2.0, min_gradient=0.0)
+    assert len(photo.X) > 2000
+    T_c_w = se3_inv(T_w_cur) @ make_pose(so3_exp([0.002, -0.003, 0.001]), [0.004, 0.0, -0.003])
+    R, t = T_c_w[:3, :3], T_c_w[:3, 3]
+    idx, e0, J = photo.evaluate(R, t)
+
+    def e_fixed(dx):
+        i2, e, _ = photo.evaluate(opt._rodrigues(dx[:3]) @ R, t + dx[3:])
+        full = np.full(len(photo.X), np.nan)
+        full[i2] = e
+        return full[idx]
+
+    eps = 1e-5
+    J_num = np.stack([(e_fixed(e) - e_fixed(-e)) / (2 * eps) for e in np.eye(6) * eps], axis=1)
+    ok = np.isfinite(J_num).all(axis=1)
+    assert ok.mean() > 0.99
+    # central differences of a bilinear image carry its interpolation error (a wave 40-60 px long: ~1 %)
+    err = np.linalg.norm(J[ok] - J_num[ok], axis=1) / np.linalg.norm(J_num[ok], axis=1).max()
+    assert np.median(err) < 0.02 and np.percentile(err, 99) < 0.1
+
+
+def test_image_edges_fix_the_slide_a_plain_wall_leaves_free():
+    """The floor and the wall ahead only, plain but for one poster: their depth cannot see a slide along both
+    (the prior holds the pose where it started); the poster's edges and the crease, coarse to fine, remove it."""
+    with _wall_and_floor_only():
+        T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
+        T_w_cur = make_pose(so3_exp([0.01, 0.08, -0.01]), [0.04, -0.02, 0.05])
+        term = _term(T_w_ref, T_w_cur)
+        photos = [_photo(T_w_ref, T_w_cur, s) for s in (4, 2)]
+    T_true = se3_inv(T_w_cur)
+    slid = make_pose(np.eye(3), T_true[:3, :3] @ np.array([0.03, 0.0, 0.0])) @ T_true  # 3 cm along the wall and the floor
+    term.T_prior, term.prior_sigma = slid, (0.02, 1.0)
+    a = align_depth(term, slid)
+    assert np.linalg.norm((a.T_c_w @ T_w_cur)[:3, 3]) > 0.02  # depth alone: the slide stays
+    T = slid
+    for photo in photos:
+        T = align_depth(term, T, iterations=10, photometric=photo).T_c_w
+    D = T @ T_w_cur
+    assert np.linalg.norm(D[:3, 3]) < 0.002
+    assert np.degrees(np.linalg.norm(cv2.Rodrigues(D[:3, :3])[0])) < 0.05

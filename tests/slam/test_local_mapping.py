@@ -14,7 +14,9 @@ from dynslam_lab.slam.local_mapping import (
     cull_keyframes,
     cull_recent_points,
     fuse_with_neighbours,
+    local_ba_window,
     replace_points,
+    run_local_ba,
 )
 from dynslam_lab.slam.map import Map
 
@@ -106,3 +108,39 @@ def test_recent_point_and_redundant_keyframe_culling():
     removed = cull_keyframes(mp, k3, cfg, close_depth=3.0)
     assert 0 not in removed and k3.id not in removed and set(removed) <= {k1.id, k2.id} and removed
     assert 0 in mp.keyframes and k3.id in mp.keyframes
+
+
+def test_local_ba_holds_a_window_keyframe_with_few_points():
+    """Four keyframes seeing 40 points, a fifth seeing 5 of them, its pose 5 cm / 2 deg off: with
+    ``ba_hold_min_obs`` above 5 it keeps its pose (held, like the origin) while the others are optimised;
+    without, local BA moves it (the counts are the construction's)."""
+    from dynslam_lab.geometry.se3 import so3_exp
+
+    rng = np.random.default_rng(0)
+    X_w = np.c_[rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.0, 1.0, 40), rng.uniform(2.5, 4.0, 40)]
+
+    def build():
+        mp = Map()
+        kfs = []
+        for i in range(4):
+            T = make_pose(t=[0.1 * i, 0.0, 0.0])
+            kfs.append(_kf(mp, transform_points(np.linalg.inv(T), X_w), T=T))
+        ids = mp.add_points(X_w, np.zeros((40, 32), np.uint8), kfs[0], np.arange(40))
+        for kf in kfs[1:]:
+            kf.map_point_ids[:] = ids
+        T_off = make_pose(so3_exp([0.0, np.radians(2.0), 0.0]), [0.25, 0.0, 0.0])  # the true pose: x = 0.2
+        few = _kf(mp, transform_points(np.linalg.inv(make_pose(t=[0.2, 0.0, 0.0])), X_w[:5]), T=T_off)
+        few.map_point_ids[:] = ids[:5]
+        mp.invalidate()
+        return mp, kfs, few, T_off
+
+    mp, kfs, few, T_off = build()
+    win = local_ba_window(mp, kfs[3], window=5, max_fixed=10, hold_min_obs=6)
+    assert few.id in win.local and few.id in win.fixed and kfs[3].id not in win.fixed
+    assert local_ba_window(mp, kfs[3], window=5, max_fixed=10).fixed == {0}
+    assert LocalMappingConfig().ba_hold_min_obs == 30
+    run_local_ba(mp, kfs[3], CAM, LocalMappingConfig(ba_hold_min_obs=6), bf=40.0, scale_factor=1.2)
+    assert np.array_equal(few.T_w_c, T_off)
+    mp, kfs, few, T_off = build()
+    run_local_ba(mp, kfs[3], CAM, LocalMappingConfig(ba_hold_min_obs=0), bf=40.0, scale_factor=1.2)
+    assert np.linalg.norm(few.T_w_c[:3, 3] - [0.2, 0.0, 0.0]) < 0.01  # free, its 5 points move it to its true pose

@@ -539,3 +539,65 @@ def test_a_loop_kept_waiting_is_closed_when_the_run_ends():
     closer.wait(mp)
     assert len(closer.loops) == 1 and closer.loops[0].applied and closer.loops[0].checks["deferred"]
     assert not closer.close_pending(mp)  # nothing left waiting
+
+
+@pytest.mark.parametrize("part_weight", [0, 100])
+def test_global_ba_parts_are_placed_by_the_pose_graph(part_weight):
+    """``global_ba_part_weight``: two parts of a map (keyframes 0-1 and 2-3, each pair sharing 300 points, the
+    parts 10). The pose graph placed the second part's keyframes within 2 mm of the truth, but the 10 points it
+    shares with the first are seen as from a world turned 3 deg about the part's centre (the weak link is
+    biased, as a far wall's quantised depth is). The global BA turns the part to fit that link; with the parts
+    anchored the part comes back onto the pose graph's poses, as one rigid body with its points, while the
+    first part (held by keyframe 0) keeps the BA's refinement."""
+    rng = np.random.default_rng(7)
+    L_a = rng.uniform([-1.5, -1.0, 2.0], [1.5, 1.0, 4.0], (300, 3))
+    L_b = rng.uniform([0.5, -1.0, 2.0], [3.5, 1.0, 4.0], (300, 3))
+    centre = L_b.mean(axis=0)
+    bias = make_pose(t=centre) @ make_pose(so3_exp([0.0, np.radians(3.0), 0.0])) @ make_pose(t=-centre)
+    desc = rng.integers(0, 256, (600, 32), dtype=np.uint8)
+    T_gt = [make_pose(so3_exp([0.0, 0.02 * k, 0.0]), [0.05 * k + (1.0 if k >= 2 else 0.0), 0.0, 0.0]) for k in range(4)]
+    T_est = [T_gt[0]] + [T @ make_pose(so3_exp(rng.normal(0, 0.0005, 3)), rng.normal(0, 0.002, 3)) for T in T_gt[1:]]
+    mp = Map()
+    ids_a = ids_b = None
+    for k in range(4):
+        if k < 2:
+            Xc = transform_points(se3_inv(T_gt[k]), L_a)
+        else:  # the part's own points seen truly, the shared ones as from the turned world
+            Xc = np.vstack([transform_points(se3_inv(T_gt[k]), L_b), transform_points(se3_inv(bias @ T_gt[k]), L_a[:10])])
+        uv, _ = CAM.project(Xc)
+        n = len(Xc)
+        kf = KeyFrame(id=mp.new_keyframe_id(), frame_index=k, timestamp=float(k), _T_w_c=T_est[k], uv=uv,
+                      descriptors=desc[:n], octave=np.zeros(n, np.int64), angle=np.zeros(n),
+                      points_c=Xc, map_point_ids=np.full(n, -1, np.int64), static=np.ones(n, bool))
+        if k:
+            kf.parent_id = k - 1
+        mp.add_keyframe(kf)
+        if k == 0:
+            ids_a = mp.add_points(L_a, desc[:300], kf, np.arange(300))
+        elif k == 1:
+            kf.map_point_ids[:] = ids_a
+        elif k == 2:
+            ids_b = mp.add_points(L_b, desc[300:], kf, np.arange(300))
+            kf.map_point_ids[300:] = ids_a[:10]
+        else:
+            kf.map_point_ids[:300] = ids_b
+            kf.map_point_ids[300:] = ids_a[:10]
+    mp.invalidate()
+    snap = take_snapshot(mp)
+    corr = run_global_ba(snap, {0}, CAM, BF, 10, 0, part_weight=part_weight)
+    index = snap.index()
+    turned = [np.degrees(np.linalg.norm(so3_log(corr.T_new[index[k]][:3, :3] @ T_est[k][:3, :3].T))) for k in (2, 3)]
+    at = np.searchsorted(corr.point_ids, ids_b)
+    if part_weight:
+        assert corr.stats["gba_parts_anchored"] == 1
+        assert max(turned) < 0.1, turned
+        for k in (2, 3):
+            assert np.linalg.norm(corr.T_new[index[k]][:3, 3] - T_est[k][:3, 3]) < 0.01
+        # the part's points came back with it: near the true positions
+        assert np.median(np.linalg.norm(corr.xyz[at] - L_b, axis=1)) < 0.01
+    else:
+        assert corr.stats["gba_parts_anchored"] == 0
+        assert min(turned) > 2.0, turned  # the BA turned the part to its points
+        assert np.median(np.linalg.norm(corr.xyz[at] - L_b, axis=1)) > 0.03
+    # the first part is the BA's either way: keyframe 1 refined towards the truth
+    assert np.linalg.norm(corr.T_new[index[1]][:3, 3] - T_gt[1][:3, 3]) < np.linalg.norm(T_est[1][:3, 3] - T_gt[1][:3, 3])

@@ -331,7 +331,8 @@ class LoopCloser:
         snap = take_snapshot(mp)
         fixed = {result.loop_kf_id}
         cam, bf, it, weak = self.camera, self.bf, self.config.global_ba_iterations, self.config.global_ba_min_observations
-        self.corrector.submit(_timed(lambda: run_global_ba(snap, fixed, cam, bf, it, weak), "global_ba", result),
+        parts = self.config.global_ba_part_weight
+        self.corrector.submit(_timed(lambda: run_global_ba(snap, fixed, cam, bf, it, weak, parts), "global_ba", result),
                               ("global_ba", result))
 
     def wait(self, map) -> list[LoopResult]:  # noqa: A002 - the contract's name

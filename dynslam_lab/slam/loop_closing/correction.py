@@ -37,10 +37,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ...camera import PinholeCamera
 from ...geometry.depth_alignment import DenseTerm, align_depth, depth_sigma, reduced_depth_points, vertex_normal_grid
-from ...geometry.se3 import se3_inv, transform_points
+from ...geometry.se3 import make_pose, nearest_rotation, se3_inv, transform_points
 from ..local_mapping import gather_observations, replace_points
 from ..optimize import Observations, local_bundle_adjustment, pose_information
 from ..pose_graph import optimize_pose_graph
@@ -336,12 +337,14 @@ def run_loop_correction(snap: Snapshot, query_id: int, loop_id: int, C: np.ndarr
 
 
 def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf: float, iterations: int,
-                  min_observations: int = 0) -> Correction:
+                  min_observations: int = 0, part_weight: int = 0) -> Correction:
     """Bundle adjustment of every keyframe and point of the snapshot (ORB-SLAM2
     ``RunGlobalBundleAdjustment``), the keyframes ``fixed_ids`` (and the map origin) held, and (ours)
     every keyframe observing fewer than ``min_observations`` points: its pose is not determined by them
     (a keyframe on a plain wall, tracked by depth, with a handful of points) and stays where the pose
-    graph put it."""
+    graph put it. With ``part_weight`` > 0 (ours) the keyframes joined by at least that many shared points form the map's rigid
+    parts; every part without a held keyframe is moved back, as one rigid body with its points, onto the poses the
+    snapshot (the pose graph) gave its keyframes (:func:`_anchor_parts`)."""
     alive_obs = np.isin(snap.obs_kf, snap.ids)
     o_kf, o_pt, o_kp = snap.obs_kf[alive_obs], snap.obs_pt[alive_obs], snap.obs_kp[alive_obs]
     if len(o_kf) == 0:
@@ -363,11 +366,54 @@ def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf
         if k not in fixed:
             T_new[index[k]] = se3_inv(res.T_c_w[k])
     out = res.outlier
-    return Correction(snap.ids, snap.T_w_c, T_new, point_ids=upts, xyz=res.points,
+    xyz = res.points
+    n_parts = 0
+    if part_weight > 0:
+        anchors = ({int(f) for f in fixed_ids} | {int(snap.ids[0])}) & set(kfs)
+        n_parts = _anchor_parts(snap, T_new, upts, xyz, anchors or fixed, fixed, part_weight)
+    return Correction(snap.ids, snap.T_w_c, T_new, point_ids=upts, xyz=xyz,
                       outliers=(o_kf[out], o_kp[out], o_pt[out]), kind="global_ba",
                       stats={"gba_points": int(len(upts)), "gba_keyframes": len(kfs), "gba_outliers": int(out.sum()),
-                             "gba_held_weak": len(weak),
+                             "gba_held_weak": len(weak), "gba_parts_anchored": n_parts,
                              "gba_cost_before": res.cost_before, "gba_cost_after": res.cost_after})
+
+
+def _anchor_parts(snap: Snapshot, T_new: np.ndarray, upts: np.ndarray, xyz: np.ndarray, anchors: set[int],
+                  fixed: set[int], part_weight: int) -> int:
+    """Move each rigid part of the global BA's result without an anchor keyframe (the loop keyframe, the map's
+    origin) back onto the snapshot's poses (in place: ``T_new (K, 4, 4)`` keyframe poses T_w_c, ``xyz`` the
+    positions of the points ``upts``). A part is a connected component of the keyframes sharing at least
+    ``part_weight`` points. Its transform ``A`` (world to world) is the least-squares one over its keyframes
+    the BA moved (not in ``fixed``), ``A T_new ~ T_snap``: the rotation nearest to ``sum R_snap R_new^T`` and
+    the translation that matches their mean camera centres; they and the part's points (by reference keyframe)
+    move with it. Returns how many parts were moved."""
+    pairs = _covisibility_pairs(snap, part_weight)
+    K = len(snap.ids)
+    graph = csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(K, K))
+    _, label = connected_components(graph, directed=False)
+    index = snap.index()
+    held = {label[index[k]] for k in anchors if k in index}
+    free = np.array([int(k) not in fixed for k in snap.ids])
+    ref = snap.ref[np.searchsorted(snap.points, upts)]
+    ref_label = np.full(len(upts), -1)
+    known = np.isin(ref, snap.ids)
+    ref_label[known] = label[np.searchsorted(snap.ids, ref[known])]
+    moved = 0
+    for c in np.unique(label):
+        if c in held:
+            continue
+        members = np.flatnonzero((label == c) & free)
+        if len(members) == 0:
+            continue
+        Rs = snap.T_w_c[members, :3, :3] @ np.swapaxes(T_new[members, :3, :3], 1, 2)
+        R_A = nearest_rotation(Rs.sum(axis=0))
+        t_A = (snap.T_w_c[members, :3, 3] - T_new[members, :3, 3] @ R_A.T).mean(axis=0)
+        A = make_pose(R_A, t_A)
+        T_new[members] = A @ T_new[members]
+        sel = ref_label == c
+        xyz[sel] = xyz[sel] @ R_A.T + t_A
+        moved += 1
+    return moved
 
 
 def _fusion_pairs(kf, mp, loop_pids: np.ndarray, kp_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
