@@ -209,6 +209,21 @@ def fuse_depth_model(sources: list[DepthSource], T_r_w: np.ndarray, camera: Pinh
     return DepthGrid(V, N, int(stride)), count
 
 
+def _to_reference(X: np.ndarray, T_r_w: np.ndarray, R: np.ndarray, t: np.ndarray, camera: PinholeCamera
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A frame's camera points ``X (M, 3)`` at the frame pose ``T_c_w = (R, t)`` seen from the reference
+    ``T_r_w``: the rotation ``R_rc`` from the frame's camera to the reference's, the points there ``Y (M, 3)``,
+    their pixels ``u, v (M,)`` in ``camera`` and whether they lie in front of it."""
+    R_r, t_r = T_r_w[:3, :3], T_r_w[:3, 3]
+    # frame camera -> world -> reference camera, in one rotation and translation
+    R_rc = R_r @ R.T
+    Y = X @ R_rc.T + (t_r - R_rc @ t)
+    z = Y[:, 2]
+    front = z > 1e-6
+    inv_z = 1.0 / np.where(front, z, 1.0)
+    return R_rc, Y, camera.fx * Y[:, 0] * inv_z + camera.cx, camera.fy * Y[:, 1] * inv_z + camera.cy, front
+
+
 @dataclass
 class DenseTerm:
     """Point-to-plane residuals of a frame's depth points ``X (M, 3)`` (camera frame, sigma ``(M,)``
@@ -226,16 +241,8 @@ class DenseTerm:
 
     def _in_reference(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """For the pose ``T_c_w = (R, t)``: the points in the reference camera ``Y (M, 3)``, their pixels
-        ``u, v (M,)`` there, and whether they lie in front of it."""
-        R_r, t_r = self.T_r_w[:3, :3], self.T_r_w[:3, 3]
-        # frame camera -> world -> reference camera, in one rotation and translation
-        R_rc = R_r @ R.T
-        t_rc = t_r - R_rc @ t
-        Y = self.X @ R_rc.T + t_rc
-        z = Y[:, 2]
-        front = z > 1e-6
-        inv_z = 1.0 / np.where(front, z, 1.0)
-        return Y, self.camera.fx * Y[:, 0] * inv_z + self.camera.cx, self.camera.fy * Y[:, 1] * inv_z + self.camera.cy, front
+        ``u, v (M,)`` there, and whether they lie in front of it (:func:`_to_reference`)."""
+        return _to_reference(self.X, self.T_r_w, R, t, self.camera)[1:]
 
     def in_view(self, T_c_w: np.ndarray, margin_px: float) -> np.ndarray:
         """``(M,)`` bool: the points that ``T_c_w`` puts in front of the reference camera and at least
@@ -404,21 +411,16 @@ class PhotometricTerm:
 
     def evaluate(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`residuals` with the indices ``(K,)`` of the samples they belong to."""
-        R_r, t_r = self.T_r_w[:3, :3], self.T_r_w[:3, 3]
-        R_rc = R_r @ R.T
-        Y = self.X @ R_rc.T + (t_r - R_rc @ t)
         cam, h, w = self.ref.camera, self.ref.I.shape[0], self.ref.I.shape[1]
-        z = Y[:, 2]
-        inv_z = 1.0 / np.where(z > 1e-6, z, 1.0)
-        u = cam.fx * Y[:, 0] * inv_z + cam.cx
-        v = cam.fy * Y[:, 1] * inv_z + cam.cy
-        idx = np.flatnonzero((z > 1e-6) & (u >= 0) & (u <= w - 2) & (v >= 0) & (v <= h - 2))
+        R_rc, Y, u, v, front = _to_reference(self.X, self.T_r_w, R, t, cam)
+        idx = np.flatnonzero(front & (u >= 0) & (u <= w - 2) & (v >= 0) & (v <= h - 2))
         if len(idx) == 0:
             return idx, np.zeros(0), np.zeros((0, 6))
         maps = (u[idx].astype(np.float32).reshape(-1, 1), v[idx].astype(np.float32).reshape(-1, 1))
         I, gx, gy = (cv2.remap(img, *maps, cv2.INTER_LINEAR).reshape(-1).astype(np.float64)
                      for img in (self.ref.I, self.ref.gx, self.ref.gy))
-        iz, Yi = inv_z[idx], Y[idx]
+        Yi = Y[idx]
+        iz = 1.0 / Yi[:, 2]
         # grad I_r times d pi / d Y, one row per sample
         g = np.empty((len(idx), 3))
         g[:, 0] = gx * cam.fx * iz
@@ -447,9 +449,7 @@ def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.n
     if len(i) > max_samples:
         keep = np.argpartition(-mag[i, j], max_samples)[:max_samples]
         i, j = i[keep], j[keep]
-    cam = frame_level.camera
-    z = frame_level.z[i, j].astype(np.float64)
-    X = np.stack([(j - cam.cx) / cam.fx * z, (i - cam.cy) / cam.fy * z, z], axis=1)
+    X = frame_level.camera.backproject(np.column_stack([j, i]), frame_level.z[i, j])
     return PhotometricTerm(X, frame_level.I[i, j].astype(np.float64), ref_level, T_r_w, float(sigma))
 
 

@@ -286,13 +286,14 @@ def local_ba_window(mp: Map, kf: KeyFrame, window: int, max_fixed: int, hold_min
     if len(pts) == 0:
         return None
     o_kf, o_pt, o_kp = mp.observations_of(pts)
-    outside, counts = np.unique(o_kf[~np.isin(o_kf, local)], return_counts=True)
+    in_local = np.isin(o_kf, local)
+    outside, counts = np.unique(o_kf[~in_local], return_counts=True)
     order = np.lexsort((outside, -counts))
     fixed = [int(k) for k in outside[order][:max_fixed]]
     origin = min(mp.keyframes)
     fixed_set = set(fixed) | ({origin} if origin in local else set())
     if hold_min_obs > 0:
-        n_obs = dict(zip(*np.unique(o_kf[np.isin(o_kf, local)], return_counts=True)))
+        n_obs = dict(zip(*np.unique(o_kf[in_local], return_counts=True)))
         fixed_set |= {k for k in local if n_obs.get(k, 0) < hold_min_obs}
     if not fixed_set:
         fixed_set = {min(local)}

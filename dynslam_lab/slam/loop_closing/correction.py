@@ -352,7 +352,8 @@ def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf
     ks, counts = np.unique(o_kf, return_counts=True)
     kfs = {int(k): snap.keyframes[int(k)] for k in ks}
     weak = {int(k) for k, c in zip(ks.tolist(), counts.tolist()) if c < min_observations}
-    fixed = ({int(f) for f in fixed_ids} | {int(snap.ids[0])} | weak) & set(kfs)
+    anchors = ({int(f) for f in fixed_ids} | {int(snap.ids[0])}) & set(kfs)  # the loop keyframe, the map's origin
+    fixed = anchors | weak
     if not fixed:
         fixed = {min(kfs)}
     index = snap.index()
@@ -369,7 +370,6 @@ def run_global_ba(snap: Snapshot, fixed_ids: set[int], camera: PinholeCamera, bf
     xyz = res.points
     n_parts = 0
     if part_weight > 0:
-        anchors = ({int(f) for f in fixed_ids} | {int(snap.ids[0])}) & set(kfs)
         n_parts = _anchor_parts(snap, T_new, upts, xyz, anchors or fixed, fixed, part_weight)
     return Correction(snap.ids, snap.T_w_c, T_new, point_ids=upts, xyz=xyz,
                       outliers=(o_kf[out], o_kp[out], o_pt[out]), kind="global_ba",
