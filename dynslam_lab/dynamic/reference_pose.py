@@ -88,6 +88,7 @@ class ReferencePoseConfig:
     segment_min_px: float = 1.5  # a surface moves when its median error without it exceeds this (sigma units) ...; ours
     segment_ratio: float = 2.5  # ... and this many times the median of the rest; ours
     segment_max_movers: int = 3  # surfaces removed at most per frame (step 3b); ours
+    segment_area_ratio: float = 1.5  # > 0: a surface of step 3c's room left out is never the moving one when its area (depth cells) is this many times that of every surface holding the rest's matches together (it is the room the rest moves in; 0 = off: docs/robustness.md "A plain room is not the moving minority"); ours
     segment_joint_ratio: float = 0.0  # > 0: ... and only when, under the pose of all matches, its median error is this many times the rest's, or the rest fits its own pose dominant_gain_weak times better, or the pose without it lies closer to the prediction (0 = off, the default: it hid movers the tracker had begun to follow, docs/robustness.md "Two groups that fit one pose"); ours
     segment_joint_spread: float = 0.5  # ... the joint check clears a surface only where the rest alone fixes its pixels to this or worse (sigma units); ours
     room_test: bool = True  # test a surface holding most matches against the room (step 3b; on since the ORB budget, without held surfaces: docs/robustness.md "The room test, on by default"); ours
@@ -124,6 +125,8 @@ class ReferencePoseConfig:
             raise ValueError(f"ReferencePoseConfig.moving_px ({self.moving_px}) must exceed inlier_px ({self.inlier_px})")
         if not self.segment_joint_spread >= 0:
             raise ValueError(f"ReferencePoseConfig.segment_joint_spread must be >= 0 sigma, got {self.segment_joint_spread}")
+        if not (self.segment_area_ratio == 0 or self.segment_area_ratio >= 1):
+            raise ValueError(f"ReferencePoseConfig.segment_area_ratio must be 0 (off) or >= 1 (times the rest's area), got {self.segment_area_ratio}")
         if not self.segment_joint_ratio >= 0:
             raise ValueError(f"ReferencePoseConfig.segment_joint_ratio must be >= 0 (0 = no check), got {self.segment_joint_ratio}")
         if self.segment_min_matches < 6 or self.segment_min_px <= 0 or self.segment_ratio <= 1 or self.segment_max_movers < 0:
@@ -339,7 +342,7 @@ def inconsistent_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K:
 def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
                     labels: np.ndarray, use: np.ndarray, config: "ReferencePoseConfig",
                     T_pred: np.ndarray | None = None, surface_cells: np.ndarray | None = None,
-                    matched: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+                    matched: np.ndarray | None = None, room_labels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
     """Step 3b: the matches on surfaces that move against the rest of the map.
 
     Each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches, leaving at
@@ -360,8 +363,12 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     (hence the spread; docs/robustness.md, "Two groups that fit one pose"). Two groups that disagree are symmetric
     (is the box moving, or everything but the box?): a surface holding less than half the matches is moving (the static majority); one holding
     more only when the pose without it lies closer to the constant-velocity prediction ``T_pred``
-    than the pose with it. The worst such surface (minorities first) is removed and the search
-    repeated (at most ``segment_max_movers`` times). Returns ``(M,)`` bool.
+    than the pose with it. With ``segment_area_ratio > 0`` a surface of the room (``room_labels``, step 3c's: large,
+    not standing in front of its neighbours) whose area (``surface_cells``) is that many times the area of all the
+    surfaces holding the rest's matches is never the moving one (a plain room with a few dozen matches, the movers
+    in front of it holding the rest: ``carried_xyz``). The worst such surface
+    (minorities first) is removed and the search repeated (at most ``segment_max_movers`` times). Returns
+    ``(M,)`` bool.
 
     **Dominant surfaces** (ours; with ``room_test``, on by default): a surface holding at least
     ``dominant_share`` of the matches is a mover mapped while it stood still, if anything is (a textured cart 1.3 m in front of the camera carries half
@@ -385,6 +392,7 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     use = use.copy()
     T = T_c_w
     room = False
+    room_set = None if room_labels is None else {int(v) for v in np.asarray(room_labels).reshape(-1)}
     for _ in range(config.segment_max_movers):
         labs, counts = np.unique(labels[(labels > 0) & use], return_counts=True)
         total = int(use.sum())
@@ -413,6 +421,13 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
             bound = max(config.segment_min_px, config.segment_ratio * r_rest)
             if r_on <= bound:
                 continue
+            if not dominant and config.segment_area_ratio > 0 and surface_cells is not None and room_set is not None \
+                    and int(lab) in room_set:
+                # the static world is the majority of the scene, not of its texture: a surface of the room far
+                # larger than all those holding the rest's matches is the room they move in, whatever their number
+                rest_labels = np.unique(labels[rest & (labels > 0)])
+                if surface_cells[lab] >= config.segment_area_ratio * surface_cells[rest_labels].sum():
+                    continue
             if not dominant and config.segment_joint_ratio > 0:
                 # left out, a surface misses a pose the rest alone fixes poorly (a large wall against a few
                 # dozen matches elsewhere) by as much as a mover misses it; one pose that fits both groups
@@ -560,7 +575,7 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
             moving, T, depth_fired = depth_moved_surfaces(T, X, q, K, sigma, lab, ~known_moving, config, room_depth,
                                                           room_ids)
         moved, T_s, room = moving_surfaces(T, X, q, K, sigma, lab, use & ~moving, config, T_pred,
-                                           surface_cells, matched=~known_moving & ~moving)
+                                           surface_cells, matched=~known_moving & ~moving, room_labels=room_ids)
         moving |= moved
         keep = use & ~moving
         if room:  # the room's pose: a re-refinement on the rest would let the object's unseen parts pull it back

@@ -277,6 +277,51 @@ def test_a_cart_holding_most_matches_that_pulled_the_pose_is_found_against_the_r
     assert not moving.any() and not room and _pose_error(T_s, T_TRUE)[0] < 2e-3
 
 
+def test_a_room_with_few_matches_is_not_the_minority_when_two_movers_hold_the_rest():
+    """The mechanism of ``carried_xyz``: a plain room holds few matches (60 on 11,000 depth cells) and a person
+    and the box they carry, mapped while they stood still, hold the rest (110 each, on 1,000 and 700 cells, each
+    under ``dominant_share``, so no room test). They start to move and the pose follows them. Left out in turn,
+    the room misses the movers' pose: counted by matches it is the moving minority, and its map points would be
+    dropped for good. By area it is the room they move in (``segment_area_ratio``): not flagged."""
+    rng = np.random.default_rng(6)
+    n_room, n_a, n_b = 60, 110, 110
+    uv_room = np.column_stack([rng.uniform(10, 630, n_room), rng.uniform(10, 470, n_room)])
+    uv_a = np.column_stack([rng.uniform(150, 300, n_a), rng.uniform(100, 400, n_a)])
+    uv_b = np.column_stack([rng.uniform(320, 450, n_b), rng.uniform(200, 400, n_b)])
+    X_w = np.vstack([CAM.backproject(uv_room, rng.uniform(3.0, 4.0, n_room)),
+                     CAM.backproject(uv_a, rng.uniform(1.6, 1.8, n_a)), CAM.backproject(uv_b, rng.uniform(1.5, 1.7, n_b))])
+    X_now = X_w.copy()
+    X_now[n_room:] += np.array([0.02, 0.0, 0.005])  # both movers, 2 cm to the side
+    uv = CAM.project(transform_points(T_TRUE, X_now))[0] + rng.normal(0, 0.3, (len(X_w), 2))
+    labels = np.r_[np.full(n_room, 1), np.full(n_a, 5), np.full(n_b, 6)]
+    cells = np.zeros(7, np.int64)
+    cells[[1, 5, 6]] = [11000, 1000, 700]
+    sigma, use = np.ones(len(uv)), np.ones(len(uv), bool)
+    movers = np.arange(len(uv)) >= n_room
+    T_followed = refine_pose(T_TRUE, X_w[movers], uv[movers], CAM.K)  # the pose that followed the movers
+    assert _pose_error(T_followed, T_TRUE)[0] > 0.015
+    off = ReferencePoseConfig(segment_area_ratio=0.0)
+    assert ReferencePoseConfig().segment_area_ratio == 1.5  # on by default
+    wrong = moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, off, T_followed, cells)[0]
+    assert wrong[:n_room].all() and not wrong[movers].any()  # by matches: the room is the mover
+    on = ReferencePoseConfig()
+    room = np.array([1])  # step 3c's room: the large surfaces that stand in front of nothing
+    assert not moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, on, T_followed, cells, room_labels=room)[0][:n_room].any()
+    # only the room's surfaces: a large surface step 3c does not count as the room (a panel close to the camera)
+    # is judged as before
+    assert moving_surfaces(T_followed, X_w, uv, CAM.K, sigma, labels, use, on, T_followed, cells, room_labels=np.array([9]))[0][:n_room].all()
+    # a box that holds few matches on a small surface is still found when the rest is the room (the guard
+    # looks at areas, not at which group is smaller in matches)
+    X_w, uv, labels_c, cells_c, n_room_c = _cart_scene(0.03)
+    few = np.r_[np.ones(n_room_c, bool), np.zeros(200, bool), np.ones(40, bool)]  # the room and the cart's side face
+    T = refine_pose(T_TRUE, X_w[few], uv[few], CAM.K)
+    moving = moving_surfaces(T, X_w[few], uv[few], CAM.K, np.ones(few.sum()), labels_c[few], np.ones(few.sum(), bool),
+                             on, T_TRUE, cells_c, room_labels=np.array([1]))[0]
+    assert moving[n_room_c:].all() and not moving[:n_room_c].any()
+    with pytest.raises(ValueError, match="segment_area_ratio"):
+        ReferencePoseConfig(segment_area_ratio=0.5)
+
+
 def test_config_and_context_are_checked():
     with pytest.raises(ValueError, match="moving_px"):
         ReferencePoseConfig(moving_px=1.0, inlier_px=2.5)
