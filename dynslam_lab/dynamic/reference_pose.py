@@ -543,7 +543,8 @@ def map_reference_pose(context, uv: np.ndarray, camera, config: ReferencePoseCon
     surface_cells : ``(L,)`` depth-grid cells of each surface label (label 0 first), or None (step 3b then
         tests no dominant surface).
     room_depth, room_ids : the room's depth against an earlier frame's and the labels of its surfaces (step 3c,
-        :func:`depth_moved_surfaces`), or None (no step 3c).
+        :func:`depth_moved_surfaces`), or None (no step 3c); step 3b never judges a large surface of ``room_ids``
+        to be the moving one (``segment_area_ratio``).
 
     Returns
     -------
