@@ -595,51 +595,6 @@ figure_explorer(draw_room_surfaces, name="10 room surfaces", probes={"index": [2
 # `random_115` (0.030 -> 0.010 m) and reduced `random_167`; one scene got worse within 5 cm and one that fails anyway got worse.
 
 # %% [markdown]
-# ## 4e. A plain room is not the moving minority (step 3b, by area)
-#
-# Step 3b leaves each surface out in turn and refines the pose on the rest: a surface that then misses its map
-# points moved against the rest. Which of two disagreeing groups moved is decided by their matches: the group
-# with fewer is "the minority", the mover. In a plain room that is backwards. `carried_xyz`: a person and the
-# box they carry stand still for 25 frames, so they are mapped, and they hold most of the matches (the walls
-# and floor hold a few dozen on most of the image). When they start to walk, the pose follows them a little;
-# left out, the floor misses that pose, and by matches the floor is the minority: it was judged to be moving,
-# its map points were dropped for good, and from then on only the movers were left to track.
-#
-# The rule now (`ReferencePoseConfig.segment_area_ratio`, 1.5): a surface of step 3c's room (large, standing in
-# front of nothing, section 4c) whose area in the depth grid is at least 1.5 times that of all the surfaces
-# holding the rest's matches together is never the moving one: the static world is the larger part of the
-# scene, not of its texture. The movers then stay in play for the room test and step 3c, which find them.
-
-# %% figures=1
-carried_seq = TumSequence(synthetic_specs(["carried_xyz"], n_frames=45)[0].root)
-AREA_RUNS = {"by area (the default)": run_geometry(carried_seq, segment_area_ratio=config.screening.reference.segment_area_ratio),
-             "by matches (before)": run_geometry(carried_seq, segment_area_ratio=0.0)}
-
-
-def draw_area_rule(index=30, rule="by area (the default)"):
-    fig, ax2 = verdicts_and_errors(carried_seq[index], AREA_RUNS[rule], index, f"the minority {rule}")
-    for name, r in AREA_RUNS.items():
-        ax2.plot(r["err"], lw=2.5 if name == rule else 1.0, label=name)
-    error_axes(ax2, index, "tracking error, the movers start at frame ~25")
-    return fig
-
-
-figure_explorer(draw_area_rule, name="10 area rule", probes={"index": [40], "rule": ["by matches (before)"]},
-                index=int_slider("frame", 30, 1, len(carried_seq) - 1),
-                rule=dropdown("the moving minority", list(AREA_RUNS), "by area (the default)"));
-print({name: f"error at frame {len(carried_seq) - 1}: {r['err'][-1]:.0f} mm" for name, r in AREA_RUNS.items()})
-
-# %% [markdown]
-# **What to look for**: up to frame 27 the runs are the same. Judged by matches, the floor's keypoints turn
-# red at frame 28 (90-180 static keypoints a frame judged dynamic from then on, the FP of the title) and the
-# error grows by about a centimetre a frame while the pose follows the person, past 16 cm at frame 44. Judged by
-# area, step 3c fires from frame 29 and flags the movers whole (fewer than 10 FP a frame); the error peaks at
-# about 8 cm at frame 34 and falls back (the room holds only about a hundred matches, so the pose stays noisy).
-# Over 105 scenes (`docs/robustness.md`, "A plain room is not the moving minority") the rule brought
-# `carried_xyz` (240 frames: 75 -> 20 mm) and `random_205` within 5 cm; one fresh scene that tracks poorly
-# either way crossed 5 cm the other way.
-
-# %% [markdown]
 # ## 4d. Perfect masks, and the depth the masks cover
 #
 # Even with perfect masks (`--filters oracle`) a mover can still pull the pose: tracking's dense depth
@@ -713,6 +668,51 @@ print({name: f"largest error {np.nanmax(r['err']):.0f} mm, frames tracked by dep
 # depth term after 16 frames and is back near 1 cm by frame 165). Over the whole 240-frame sequence
 # (`docs/tracking.md`, "Dense term"): ATE 111 mm with the cart's depth, 22 mm without it, 15 mm on the
 # path without movers.
+
+# %% [markdown]
+# ## 4e. A plain room is not the moving minority (step 3b, by area)
+#
+# Step 3b leaves each surface out in turn and refines the pose on the rest: a surface that then misses its map
+# points moved against the rest. Which of two disagreeing groups moved is decided by their matches: the group
+# with fewer is "the minority", the mover. In a plain room that is backwards. `carried_xyz`: a person and the
+# box they carry stand still for 25 frames, so they are mapped, and they hold most of the matches (the walls
+# and floor hold a few dozen on most of the image). When they start to walk, the pose follows them a little;
+# left out, the floor misses that pose, and by matches the floor is the minority: it was judged to be moving,
+# its map points were dropped for good, and from then on only the movers were left to track.
+#
+# The rule now (`ReferencePoseConfig.segment_area_ratio`, 1.5): a surface of step 3c's room (large, standing in
+# front of nothing, section 4c) whose area in the depth grid is at least 1.5 times that of all the surfaces
+# holding the rest's matches together is never the moving one: the static world is the larger part of the
+# scene, not of its texture. The movers then stay in play for the room test and step 3c, which find them.
+
+# %% figures=1
+carried_seq = TumSequence(synthetic_specs(["carried_xyz"], n_frames=45)[0].root)
+AREA_RUNS = {"by area (the default)": run_geometry(carried_seq, segment_area_ratio=config.screening.reference.segment_area_ratio),
+             "by matches (before)": run_geometry(carried_seq, segment_area_ratio=0.0)}
+
+
+def draw_area_rule(index=30, rule="by area (the default)"):
+    fig, ax2 = verdicts_and_errors(carried_seq[index], AREA_RUNS[rule], index, f"the minority {rule}")
+    for name, r in AREA_RUNS.items():
+        ax2.plot(r["err"], lw=2.5 if name == rule else 1.0, label=name)
+    error_axes(ax2, index, "tracking error, the movers start at frame ~25")
+    return fig
+
+
+figure_explorer(draw_area_rule, name="10 area rule", probes={"index": [40], "rule": ["by matches (before)"]},
+                index=int_slider("frame", 30, 1, len(carried_seq) - 1),
+                rule=dropdown("the moving minority", list(AREA_RUNS), "by area (the default)"));
+print({name: f"error at frame {len(carried_seq) - 1}: {r['err'][-1]:.0f} mm" for name, r in AREA_RUNS.items()})
+
+# %% [markdown]
+# **What to look for**: up to frame 27 the runs are the same. Judged by matches, the floor's keypoints turn
+# red at frame 28 (90-180 static keypoints a frame judged dynamic from then on, the FP of the title) and the
+# error grows by about a centimetre a frame while the pose follows the person, past 16 cm at frame 44. Judged by
+# area, step 3c fires from frame 29 and flags the movers whole (fewer than 10 FP a frame); the error peaks at
+# about 8 cm at frame 34 and falls back (the room holds only about a hundred matches, so the pose stays noisy).
+# Over 105 scenes (`docs/robustness.md`, "A plain room is not the moving minority") the rule brought
+# `carried_xyz` (240 frames: 75 -> 20 mm) and `random_205` within 5 cm; one fresh scene that tracks poorly
+# either way crossed 5 cm the other way.
 
 # %% [markdown]
 # ## 5. The robustness table: two scenes, four filters, and the path without movers
