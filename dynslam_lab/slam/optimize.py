@@ -386,11 +386,13 @@ def _lm_pose(R: np.ndarray, t: np.ndarray, X_w: np.ndarray, obs: Observations, c
 
 
 def _lm_pose_terms(R: np.ndarray, t: np.ndarray, terms: _PoseTerms, delta2: float | None, iterations: int,
-                   dense=None) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`_lm_pose` on observations already gathered in a :class:`_PoseTerms`."""
+                   dense=None, damped: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`_lm_pose` on observations already gathered in a :class:`_PoseTerms`. ``damped`` False: plain
+    Gauss-Newton, every step taken and the pose not evaluated after the last (``iterations`` evaluations in
+    all; the cost returned is the one before the last step): a refinement from a pose already close."""
     lam = 1e-4
     cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, terms, delta2, dense)
-    for _ in range(iterations):
+    for it in range(iterations):
         J = o.jacobian(X_c, RX)
         Jw = J * np.repeat(w, 3)[:, None]
         H = J.T @ Jw
@@ -399,6 +401,16 @@ def _lm_pose_terms(R: np.ndarray, t: np.ndarray, terms: _PoseTerms, delta2: floa
             e, Jd, wd = ds
             H += Jd.T @ (Jd * wd[:, None])
             g += Jd.T @ (wd * e)
+        if not damped:
+            try:
+                dx = -np.linalg.solve(H + 1e-12 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                break
+            R, t = _rotation_step(dx[:3]) @ R, t + dx[3:]
+            if it == iterations - 1 or np.abs(dx).max() < _STEP_TOL:
+                break
+            cost, (RX, X_c, o, r, w, ds) = _evaluate_pose(R, t, terms, delta2, dense)
+            continue
         diag = np.diag(H)
         while True:
             try:
@@ -430,6 +442,7 @@ def optimize_pose(
     rounds: int = 4,
     max_iterations: int = 10,
     dense=None,
+    damped: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Motion-only bundle adjustment (ORB-SLAM2 eq. 2).
 
@@ -462,7 +475,7 @@ def optimize_pose(
         if use.sum() < 3 and dense is None:
             break
         delta2 = HUBER_DELTA2 if rnd < rounds - 1 else None
-        R, t, _ = _lm_pose_terms(R, t, terms if use.all() else terms.subset(use), delta2, max_iterations, dense)
+        R, t, _ = _lm_pose_terms(R, t, terms if use.all() else terms.subset(use), delta2, max_iterations, dense, damped)
         _, outlier = terms.classify(X_w @ R.T + t)  # every observation classified again
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t

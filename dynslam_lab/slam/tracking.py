@@ -52,10 +52,15 @@ frames the features fail, or keep few inliers with a pose off the motion predict
 walls (few features) keep a pose; depth samples near keypoints judged dynamic are left out. ``"off"`` is
 ORB-SLAM2.
 
-**Joint refinement** (ours, ``joint_position_sigma`` / ``joint_rotation_deg``, off by default): a frame
-the features tracked whose pose they fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on
-a few objects of a plain room) is refined by motion-only BA over its features and the dense term together
-(method ``"joint"``; docs/tracking.md "Weak feature poses"). Options of the dense term, off by default
+**Joint refinement** (ours, method ``"joint"``). By default (``joint_every_frame``) every frame the features
+tracked, while the scene is judged static, is refined by two Gauss-Newton steps over its feature inliers and
+its image edges against the reference keyframe's image (the photometric term of Steinbruecker et al. 2011's
+hybrid odometry): the corners' white jitter of ~2.5 mm from frame to frame falls to ~1.4 mm (docs/tracking.md
+"Image edges against the corners' jitter"). An older option (``joint_position_sigma`` /
+``joint_rotation_deg`` with ``joint_every_frame`` and ``joint_gn_iterations`` off): a frame whose pose the
+features fix poorly (:func:`~.optimize.pose_uncertainty`: keypoints clustered on a few objects of a plain
+room) is refined by motion-only BA over its features and the dense depth term together (docs/tracking.md
+"Weak feature poses"). Options of the dense term, off by default
 (docs/tracking.md "A depth model of recent keyframes"): the reference a model fused from the last keyframes'
 depth instead of the last frame's (``dense_reference``), depth averaged before alignment
 (``dense_smooth_px``), its weight (``dense_sigma_scale``).
@@ -87,7 +92,7 @@ from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
-from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, ImageLevel, align_depth, fuse_depth_model,
+from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, HybridTerm, ImageLevel, align_depth, fuse_depth_model,
                                         image_level, photometric_term, smooth_depth, vertex_normal_grid)
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
@@ -98,6 +103,8 @@ __all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pos
 
 
 _DENSE_KF_MIN_INLIERS = 5  # feature inliers a dense-tracked keyframe needs to be tied to the map (local BA needs observations)
+JOINT_MAX_STEP = (0.01, 0.5)  # m, deg: a Gauss-Newton joint refinement moving the feature pose farther is refused (the feature pose stands)
+JOINT_KEYFRAME_LEVELS = 4  # image levels of the most recent keyframes kept for the joint refinement (joint_reference = "keyframe"; 4 x 160 x 120 x 4 float32 planes ~ 1.2 MB)
 
 
 def pose_distance(T: np.ndarray) -> tuple[float, float]:
@@ -183,6 +190,14 @@ class TrackingConfig:
     dense_model_last_frame: bool = True  # "keyframes": the last frame's depth fills the model's cells no keyframe sample reaches (a plain wall makes few keyframes); ours
     joint_position_sigma: float = 0.0  # m; a frame the features tracked is refined with the dense term too ("joint") when its feature pose leaves the camera centre this uncertain (optimize.pose_uncertainty, 1 px noise) or more, while "weak"/"auto" engage (static scene); 0 = off (the default: it trades loop_pattern's ATE for loop_flat's); tried 0.0025; ours, docs/tracking.md "Weak feature poses: features and depth together"
     joint_rotation_deg: float = 0.0  # deg; same for the orientation; 0 = off; tried 0.05; ours
+    joint_every_frame: bool = True  # every frame the features tracked is refined jointly (not only those whose pose is uncertain, joint_position_sigma), while "weak"/"auto" engage (static scene); ours, docs/tracking.md "Image edges against the corners' jitter"
+    joint_gn_iterations: int = 2  # > 0: the joint refinement is this many Gauss-Newton steps from the feature pose over its inliers (no outlier rounds); 0 = a motion-only BA with its outlier rounds and the dense depth term (the joint refinement of weak feature poses, as before); ours
+    joint_photometric_scale: int = 4  # > 0: the joint refinement adds the photometric term (the frame's image edges against a reference image, Steinbruecker et al. 2011) at this image reduction (4: 160 x 120 for 640 x 480); 0 = the dense depth term only; ours
+    joint_photometric_sigma: float = 8.0  # grey levels: the whitening of the joint refinement's photometric residuals (Huber at 2 sigma); weaker than dense_photometric_sigma (4): here the features fix the pose on the map and the image only steadies it; ours
+    joint_photometric_samples: int = 3000  # pixels of the photometric term at most (the strongest gradients); ours
+    joint_reference: str = "keyframe"  # the image the photometric term aligns to: "keyframe" (the reference keyframe's, kept when it was made, at its pose as local BA keeps it: consecutive frames share one anchored reference) or "frame" (the last frame's: frame to frame, it chains the last pose's error: loop_flat's ATE +50 %); ours
+    joint_depth: bool = False  # the joint refinement with the photometric term keeps the dense depth term (against the last frame's depth) too: no better on the static presets (RPE median 1.39 mm with it, sigma 16; 1.36 without, sigma 8) at ~3 ms more a frame; ours
+    joint_dense_step: int = 1  # the depth term of the joint refinement takes every this-many-th sample of the dense grid (dense_stride); ours
     start_from_reference: bool = True  # with a screener that refined the frame's pose on the local map (the reference pose, dynamic.reference_pose), track the local map from that pose and its inlier matches instead of the motion-model search and refinement (the same matching and refinement done once; DynaSLAM's "low-cost tracking" feeds its tracking the same way); ours, docs/speed.md "Tracking from the reference pose"
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
 
@@ -196,6 +211,14 @@ class TrackingConfig:
         if not scales or not all(isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in scales):
             raise ValueError(f"TrackingConfig.dense_photometric_scales must be integers >= 1, got {self.dense_photometric_scales!r}")
         object.__setattr__(self, "dense_photometric_scales", scales)  # a list from a TOML file becomes a tuple
+        if self.joint_reference not in ("frame", "keyframe"):
+            raise ValueError(f"TrackingConfig.joint_reference must be 'frame' or 'keyframe', got {self.joint_reference!r}")
+        for name, lo in (("joint_gn_iterations", 0), ("joint_photometric_scale", 0), ("joint_photometric_samples", 20), ("joint_dense_step", 1)):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
+                raise ValueError(f"TrackingConfig.{name} must be an integer >= {lo}, got {v!r}")
+        if not self.joint_photometric_sigma > 0:
+            raise ValueError(f"TrackingConfig.joint_photometric_sigma must be > 0 grey levels, got {self.joint_photometric_sigma}")
         if self.dense_reference not in ("frame", "keyframes"):
             raise ValueError(f"TrackingConfig.dense_reference must be 'frame' or 'keyframes', got {self.dense_reference!r}")
         if self.dense_model_pose not in ("map", "tracked"):
@@ -324,6 +347,7 @@ class Tracker:
         self._last_depth: tuple[int, DepthSource] | None = None
         self._smoothed: dict[int, np.ndarray] = {}  # frame index -> depth image smoothed for the dense term (two kept)
         self._levels: dict[tuple[int, int], ImageLevel] = {}  # (frame index, scale) -> image level of the photometric term (two frames kept)
+        self._kf_levels: dict[int, ImageLevel] = {}  # keyframe id -> its image level for the joint refinement (joint_reference = "keyframe"; the most recent few)
         self.dense_model_sources = 0  # views fused into the last model (0: the last frame's grid, "frame")
         self.dense_fraction = 0.0
         # The low-texture options (far points, dense term) engage only while the screening judges the
@@ -509,6 +533,29 @@ class Tracker:
         self._kf_depth[kf.id] = DepthSource(src.V, src.N, se3_inv(kf.T_w_c) @ last.T_w_c)
         keep = sorted(k for k in self._kf_depth if k in self.map.keyframes)[-2 * self.cfg.dense_model_keyframes :]
         self._kf_depth = {k: self._kf_depth[k] for k in keep}
+
+    def _note_keyframe_level(self) -> None:
+        """Keep the image level of the last frame when it became a keyframe (the joint refinement's reference,
+        ``joint_reference = "keyframe"``), and forget those of keyframes no longer in the map or beyond the
+        most recent ``JOINT_KEYFRAME_LEVELS``."""
+        last, kf, cfg = self.last, self.ref_kf, self.cfg
+        if (cfg.joint_reference != "keyframe" or cfg.joint_photometric_scale <= 0 or last is None or kf is None
+                or last.gray_image is None or last.depth_image is None or kf.frame_index != last.index
+                or kf.id in self._kf_levels):
+            return
+        self._kf_levels[kf.id] = self._image_level(last, cfg.joint_photometric_scale)
+        keep = sorted(k for k in self._kf_levels if k in self.map.keyframes)[-JOINT_KEYFRAME_LEVELS:]
+        self._kf_levels = {k: self._kf_levels[k] for k in keep}
+
+    def _joint_reference(self) -> tuple[ImageLevel, np.ndarray]:
+        """The image level the joint refinement aligns a frame's edges to, and its ``T_r_w``: the reference
+        keyframe's (``joint_reference = "keyframe"``, when its level is kept: its pose is the one local BA keeps
+        on the map, so consecutive frames share one anchored reference and do not chain their errors), else the
+        last frame's."""
+        cfg, kf = self.cfg, self.ref_kf
+        if cfg.joint_reference == "keyframe" and kf is not None and kf.id in self._kf_levels and not kf.bad:
+            return self._kf_levels[kf.id], se3_inv(kf.T_w_c)
+        return self._image_level(self.last, cfg.joint_photometric_scale), se3_inv(self.last.T_w_c)
 
     def dense_reference_model(self, T_r_w: np.ndarray) -> DepthGrid | None:
         """The reference of the dense term for ``dense_reference = "keyframes"``: the depth samples of the most
@@ -801,6 +848,7 @@ class Tracker:
         self.method = ""
         self.note_screening(frame)
         self._note_keyframe_depth()
+        self._note_keyframe_level()
         self.predicted_T_c_w = None
         self.motion_deviation = (0.0, 0.0)
         if self.state in (TrackState.OK, TrackState.RELOCALIZED):
@@ -879,27 +927,62 @@ class Tracker:
 
     def _needs_joint(self, frame: SlamFrame) -> bool:
         """Whether a frame the features tracked is refined with the dense term as well (:meth:`refine_joint`):
-        ``"weak"`` or ``"auto"``, the scene judged static (:meth:`scene_static`), and a feature pose whose
-        uncertainty (:meth:`feature_pose_uncertainty`) reaches ``joint_position_sigma`` or
+        ``"weak"`` or ``"auto"``, the scene judged static (:meth:`scene_static`), and ``joint_every_frame`` or a
+        feature pose whose uncertainty (:meth:`feature_pose_uncertainty`) reaches ``joint_position_sigma`` or
         ``joint_rotation_deg``: matches clustered on a few objects of a plain room. Ours, docs/tracking.md
-        "Weak feature poses: features and depth together"."""
+        "Weak feature poses: features and depth together" and "Image edges against the corners' jitter"."""
         cfg = self.cfg
         if cfg.dense not in ("weak", "auto") or not self.scene_static(frame.index):
             return False
+        if cfg.joint_every_frame:
+            return True
         if cfg.joint_position_sigma <= 0 and cfg.joint_rotation_deg <= 0:
             return False
         s_c, s_r = self.feature_pose_uncertainty(frame)
         return (0 < cfg.joint_position_sigma <= s_c) or (0 < cfg.joint_rotation_deg <= s_r)
 
     def refine_joint(self, frame: SlamFrame) -> bool:
-        """Motion-only BA of ``frame``'s feature matches together with the dense depth term (its depth
-        image against the last frame's, :mod:`~dynslam_lab.geometry.depth_alignment`), from the feature pose. Kept (method
-        ``"joint"``) when ``dense_min_fraction`` of the depth samples are associated and
-        ``min_track_inliers`` matches stay inliers; otherwise the feature pose stands."""
+        """``frame``'s pose from its feature matches together with the dense depth term (its depth image against
+        the last frame's, :mod:`~dynslam_lab.geometry.depth_alignment`; with the photometric term only when
+        ``joint_depth``) and, with ``joint_photometric_scale``, the photometric term (its image edges against the
+        reference image of :meth:`_joint_reference`: :class:`~dynslam_lab.geometry.depth_alignment.HybridTerm`),
+        from the feature pose. ``joint_gn_iterations`` > 0: that many Gauss-Newton steps over the feature inliers as
+        they are; 0: a motion-only BA with its outlier rounds (always with the depth term), kept when
+        ``min_track_inliers`` matches stay inliers. Kept (method ``"joint"``) when ``dense_min_fraction`` of the
+        depth samples are associated (when there is a depth term); otherwise the feature pose stands."""
         cfg = self.cfg
-        term = self._dense_term(frame, se3_inv(frame.T_w_c))
+        term = depth = None
+        if cfg.joint_depth or cfg.joint_photometric_scale <= 0 or cfg.joint_gn_iterations <= 0:
+            term = depth = self._dense_term(frame, se3_inv(frame.T_w_c))
+            if term is None:
+                return False
+            if cfg.joint_dense_step > 1:
+                term.X, term.sigma = term.X[:: cfg.joint_dense_step], term.sigma[:: cfg.joint_dense_step]
+        if cfg.joint_photometric_scale > 0 and frame.gray_image is not None and self.last.gray_image is not None:
+            k = cfg.joint_photometric_scale
+            lf = self._image_level(frame, k)
+            lr, T_r_w = self._joint_reference()
+            photo = photometric_term(lf, lr, T_r_w, cfg.joint_photometric_sigma,
+                                     exclude=self._dynamic_cells(frame, lf.I.shape, stride=k),
+                                     max_samples=cfg.joint_photometric_samples)
+            if photo is not None:
+                term = HybridTerm(depth, photo)
         if term is None:
             return False
+        if cfg.joint_gn_iterations > 0:
+            idx = np.flatnonzero(frame.map_point_ids >= 0)  # the feature pose's inliers (outliers were discarded)
+            if len(idx) < cfg.min_track_inliers:
+                return False
+            T, _ = optimize_pose(se3_inv(frame.T_w_c), self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx),
+                                 self.camera, cfg.bf, rounds=1, max_iterations=cfg.joint_gn_iterations, dense=term,
+                                 damped=False)
+            fraction = len(depth.associate(T[:3, :3], T[:3, 3])[0]) / len(depth.X) if depth is not None else 1.0
+            moved_m, moved_deg = pose_distance(T @ frame.T_w_c)
+            if fraction < cfg.dense_min_fraction or moved_m > JOINT_MAX_STEP[0] or moved_deg > JOINT_MAX_STEP[1]:
+                return False  # a refinement is a nudge: a jump says the image disagrees with the features
+            frame.T_w_c = se3_inv(T)
+            self.dense_fraction, self.method = fraction, "joint"
+            return True
         kept = (frame.T_w_c, frame.map_point_ids.copy(), frame.outlier.copy(), self.n_inliers)
         self._dense = term
         try:
@@ -907,7 +990,7 @@ class Tracker:
         finally:
             self._dense = None
         T = se3_inv(frame.T_w_c)
-        fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
+        fraction = len(depth.associate(T[:3, :3], T[:3, 3])[0]) / len(depth.X)
         if n < cfg.min_track_inliers or fraction < cfg.dense_min_fraction:
             # rolled back: the feature pose, its matches and their outlier flags as they were (the joint BA's
             # outlier marks must not survive to drop matches of the feature pose)

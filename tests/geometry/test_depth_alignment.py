@@ -12,7 +12,7 @@ from dynslam_lab.camera import CAMERA_PRESETS
 from dynslam_lab.geometry.se3 import make_pose, se3_inv, so3_exp
 from dynslam_lab.slam import optimize as opt
 from dynslam_lab.datasets.kinect import DepthNoise, kinect_depth, nguyen_sigma
-from dynslam_lab.geometry.depth_alignment import (DenseTerm, DepthSource, ReprojectionTerm, align_depth, fuse_depth_model,
+from dynslam_lab.geometry.depth_alignment import (DenseTerm, DepthSource, HybridTerm, ReprojectionTerm, align_depth, fuse_depth_model,
                                                  image_level, photometric_term, smooth_depth, vertex_normal_grid)
 from dynslam_lab.slam.optimize import Observations, optimize_pose
 
@@ -395,3 +395,27 @@ def test_image_edges_fix_the_slide_a_plain_wall_leaves_free():
     D = T @ T_w_cur
     assert np.linalg.norm(D[:3, 3]) < 0.002
     assert np.degrees(np.linalg.norm(cv2.Rodrigues(D[:3, :3])[0])) < 0.05
+
+
+def test_hybrid_term_appends_huber_bounded_photometric_rows():
+    """:class:`HybridTerm` (the joint refinement's dense term): the depth term's rows and gate unchanged, then
+    the photometric rows, each residual ``e`` with ``|e| > huber`` and its Jacobian row scaled by
+    ``sqrt(huber / |e|)`` (its squared residual becomes ``huber |e|``: Huber's cost, up to the constant), the
+    others as they are."""
+    T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
+    T_w_cur = make_pose(so3_exp([0.01, 0.07, -0.01]), [0.03, -0.02, 0.05])
+    term = _term(T_w_ref, T_w_cur)
+    photo = _photo(T_w_ref, T_w_cur, 2)
+    T_c_w = se3_inv(T_w_cur) @ make_pose(so3_exp([0.004, -0.003, 0.002]), [0.01, 0.0, -0.006])  # off: large residuals
+    R, t = T_c_w[:3, :3], T_c_w[:3, 3]
+    e_d, J_d, gate_d = term.residuals(R, t)
+    e_p, J_p = photo.residuals(R, t)
+    e, J, gate = HybridTerm(term, photo, huber=2.0).residuals(R, t)
+    n = len(e_d)
+    assert np.array_equal(e[:n], e_d) and np.array_equal(J[:n], J_d) and np.array_equal(gate, gate_d)
+    assert len(e) == n + len(e_p)
+    big = np.abs(e_p) > 2.0
+    assert 0.05 < big.mean() < 0.95  # both kinds present
+    assert np.array_equal(e[n:][~big], e_p[~big]) and np.array_equal(J[n:][~big], J_p[~big])
+    assert np.allclose(e[n:][big] ** 2, 2.0 * np.abs(e_p[big]))
+    assert np.allclose(J[n:][big], J_p[big] * np.sqrt(2.0 / np.abs(e_p[big]))[:, None])
