@@ -463,9 +463,10 @@ def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.n
 
 @dataclass
 class HybridTerm:
-    """A :class:`DenseTerm` with the :class:`PhotometricTerm` of the same frame against the same reference (hybrid
-    RGB-D odometry, Steinbruecker et al. 2011), as one term of motion-only BA (``slam.optimize.optimize_pose``'s
-    ``dense``). The photometric residuals are Huber-weighted at ``huber`` (whitened units) inside the term
+    """A frame's :class:`PhotometricTerm` with its :class:`DenseTerm` (or without one: ``depth`` None), as one term of
+    motion-only BA (``slam.optimize.optimize_pose``'s ``dense``): the hybrid RGB-D odometry of Steinbruecker et al.
+    (2011); each term has its own reference (tracking's refinement aligns the image to the reference keyframe's,
+    the depth to the last frame's). The photometric residuals are Huber-weighted at ``huber`` (whitened units) inside the term
     (iteratively reweighted: each residual and its Jacobian row scaled by the square root of its weight at the
     current pose), so that an occlusion or a highlight stays bounded in every round of the BA, also in the last,
     which has no robust kernel of its own."""
@@ -475,8 +476,8 @@ class HybridTerm:
     huber: float = 2.0
 
     def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`DenseTerm.residuals` with the photometric rows appended (the gate of unassociated depth
-        points as the depth term's)."""
+        """:meth:`DenseTerm.residuals` (none without a depth term) with the photometric rows appended (the gate of
+        unassociated depth points as the depth term's)."""
         if self.depth is None:
             e, J, gate = np.zeros(0), np.zeros((0, 6)), np.zeros(0)
         else:

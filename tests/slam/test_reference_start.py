@@ -47,12 +47,17 @@ def test_tracking_starts_from_the_reference_pose_and_stays_on_the_static_world(s
     methods_mm, ate_mm, _ = _run(sequence, False)
     assert not system.lost_frames
     # the reference pose is on the map from the second frame: later frames start from it, except where the
-    # reference pose found a surface moving against the rest (then the motion model decides: measured 84 of 90)
+    # reference pose found a surface moving against the rest (then the motion model decides: measured 84 of 90).
+    # Frames judged static (before the screening has seen the boxes move, and 30 frames after it last saw a
+    # mover) are refined with image edges (method "joint", docs/tracking.md "Image edges against the corners'
+    # jitter"), whichever start they had
     moved = system.moved_surface_frames
-    assert methods.count("reference_pose") >= 0.8 * N_FRAMES, methods
+    assert methods.count("reference_pose") + methods.count("joint") >= 0.8 * N_FRAMES, methods
+    assert methods.count("reference_pose") >= 0.5 * N_FRAMES, methods
     assert all(m != "reference_pose" for m, mv in zip(methods, moved) if mv)
-    assert all(m == "reference_pose" for m, mv in zip(methods[2:], moved[2:]) if not mv), methods
-    assert "reference_pose" not in methods_mm and methods_mm.count("motion_model") >= N_FRAMES - 5
+    assert all(m in ("reference_pose", "joint") for m, mv in zip(methods[2:], moved[2:]) if not mv), methods
+    assert "reference_pose" not in methods_mm
+    assert methods_mm.count("motion_model") + methods_mm.count("joint") >= N_FRAMES - 5, methods_mm
     # the same static world as the motion model finds (measured 1.9 mm both ways): the boxes, close and
     # moving from frame 3 on, pull neither
     assert ate <= 0.012 and ate_mm <= 0.012
