@@ -454,7 +454,9 @@ def optimize_pose(
     max_iterations : Levenberg-Marquardt iterations per round at most (ORB-SLAM2: 10).
     dense : optional :class:`~dynslam_lab.geometry.depth_alignment.DenseTerm`, point-to-plane residuals of the frame's
         depth added to the cost (ours, for frames with few features); its points are re-associated
-        at every evaluation.
+        at every evaluation. Or a :class:`~dynslam_lab.geometry.depth_alignment.HybridTerm` (image edges too).
+    damped : Levenberg-Marquardt (True, ORB-SLAM2's g2o); False: plain Gauss-Newton, ``max_iterations``
+        steps each taken (tracking's refinement of a pose already close, ``TrackingConfig.joint_gn_iterations``).
 
     Returns
     -------
