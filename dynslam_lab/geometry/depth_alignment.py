@@ -461,6 +461,12 @@ def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.n
     return PhotometricTerm(X, frame_level.I[i, j].astype(np.float64), ref_level, T_r_w, float(sigma))
 
 
+def _huber_weights(e: np.ndarray, huber: float) -> np.ndarray:
+    """IRLS weights of Huber's function at ``huber`` for whitened residuals ``e``: 1 inside, ``huber / |e|`` beyond."""
+    a = np.abs(e)
+    return np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+
+
 @dataclass
 class HybridTerm:
     """A frame's :class:`PhotometricTerm` with its :class:`DenseTerm` (or without one: ``depth`` None), as one term of
@@ -483,8 +489,7 @@ class HybridTerm:
         else:
             e, J, gate = self.depth.residuals(R, t)
         e_p, J_p = self.photometric.residuals(R, t)
-        a = np.abs(e_p)
-        s = np.sqrt(np.where(a <= self.huber, 1.0, self.huber / np.maximum(a, 1e-12)))
+        s = np.sqrt(_huber_weights(e_p, self.huber))
         return np.concatenate([e, e_p * s]), np.vstack([J, J_p * s[:, None]]), gate
 
 
@@ -530,8 +535,7 @@ def align_depth(term: DenseTerm, T_start: np.ndarray, iterations: int = 8, huber
         if photometric is not None:
             e_p, J_p = photometric.residuals(R, t)
             e, J = np.concatenate([e, e_p]), np.vstack([J, J_p])
-        a = np.abs(e)
-        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+        w = _huber_weights(e, huber)
         H = J.T @ (J * w[:, None])
         g = J.T @ (w * e)
         try:
