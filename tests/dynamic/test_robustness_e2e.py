@@ -50,6 +50,13 @@ def test_the_robustness_table_reports_every_run(runs):
     assert set(df.index) == {"none", "geometry", "no movers"}
     text = (out / "robustness.md").read_text()
     assert "| geometry |" in text and "## Targets (issue 16)" in text
+    from dynslam_lab.datasets import stress
+    from dynslam_lab.datasets.rooms import ROOM_STYLES
+
+    # the kind of scene, from the renderer's metadata: the room's style and the camera's motion of the preset
+    assert df.loc["geometry", "room"] == stress.STRESS_SUITE[SCENE].style in ROOM_STYLES
+    assert df.loc["geometry", "camera"] == stress.STRESS_SUITE[SCENE].motion
+    assert "## By room surfaces" in text and "## By camera motion" in text
     assert (out / "robustness.png").stat().st_size > 1000
     assert df.loc["geometry", "ate_vs_none"] == pytest.approx(df.loc["geometry", "ate_rmse_m"] / df.loc["none", "ate_rmse_m"])
 
