@@ -14,8 +14,8 @@ sequence and filter (``docs/robustness.md``):
 * the movers' image coverage (mean and maximum over the frames, from the renderer's statistics);
 * the kind of scene: the room's surface style (``flat``, ``noise``, ``pattern``, ``photo``; ``office`` for the
   office presets) and the camera's motion, from the renderer's ``synthetic.json``. The markdown splits every
-  filter's results by both (:func:`by_kind`): a filter that fails on one kind of room fails there on every
-  seed, and a median over all scenes hides it.
+  filter's results by both (:func:`by_kind`): failures cluster by kind of room (``geometry``'s in plain,
+  ``flat`` rooms; docs/robustness.md), and a median over all scenes hides that.
 
 The filters (:data:`FILTERS`): ``none``; ``geometry`` without a detector; ``full`` with the oracle
 detector (which names people only, never a box or a cart); ``full`` with an ONNX detector when a
