@@ -79,15 +79,16 @@ def _one_sequence(preset: str, seq, filters: list[str], cv2, config) -> list[tup
         det = "none" if name in ("geometry", "oracle") or name.startswith("epipolar") else "oracle"
         system = build_pipeline(config, seq.camera, detector=det, filters=name, loop_closing=False)
         screen_cpu: list[float] = []
-        screen = system.screener.screen
+        if system.screener is not None:  # `none` screens nothing: only its system time is measured
+            screen = system.screener.screen
 
-        def cpu_timed(*a, _screen=screen, _out=screen_cpu, **k):  # CPU time of screening alone (load-proof)
-            c0 = time.process_time()
-            table = _screen(*a, **k)
-            _out.append((time.process_time() - c0) * 1e3)
-            return table
+            def cpu_timed(*a, _screen=screen, _out=screen_cpu, **k):  # CPU time of screening alone (load-proof)
+                c0 = time.process_time()
+                table = _screen(*a, **k)
+                _out.append((time.process_time() - c0) * 1e3)
+                return table
 
-        system.screener.screen = cpu_timed
+            system.screener.screen = cpu_timed
         timings: dict[str, list[float]] = {}
         tp = fp = fn = 0
         cpu, wall = [], []
