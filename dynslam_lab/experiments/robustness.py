@@ -408,8 +408,18 @@ def robustness_markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _sequence_labels(df: pd.DataFrame, seqs: list[str]) -> list[str]:
+    """Each sequence's name with ``room, camera`` under it when the rows know them (failures cluster by room:
+    docs/robustness.md)."""
+    kind = {}
+    if "room" in df and "camera" in df:
+        kind = {s: f"{r}, {c}" for s, r, c in zip(df["sequence"], df["room"], df["camera"]) if str(r) != "-"}
+    return [f"{s}\n{kind[s]}" if s in kind else s for s in seqs]
+
+
 def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
-    """ATE per sequence and filter (log scale; the reference without movers as a line), written to ``path``."""
+    """ATE per sequence and filter (log scale; the reference without movers as a line; each sequence labelled with
+    its room and camera motion when known), written to ``path``."""
     # optional heavy dependency: only the plot needs it. A Figure without pyplot: no global backend switch
     # (matplotlib.use("Agg") here turned off a notebook's inline figures after run_robustness)
     from matplotlib.figure import Figure  # heavy: only for the plot
@@ -431,7 +441,7 @@ def robustness_plot(df: pd.DataFrame, path: str | Path) -> Path:
     ax.axhline(0.05, color="r", linewidth=0.8, linestyle=":", label="0.05 m target")
     ax.set_yscale("log")
     ax.set_xticks(x)
-    ax.set_xticklabels(seqs, rotation=30, ha="right")
+    ax.set_xticklabels(_sequence_labels(df, seqs), rotation=30, ha="right")
     ax.set_ylabel("ATE RMSE (m), log scale")
     ax.set_title("ATE per sequence and filter (dashed: same path without movers)")
     ax.legend(fontsize=8, ncol=2)

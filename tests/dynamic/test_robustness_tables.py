@@ -8,7 +8,7 @@ import json
 import pandas as pd
 import pytest
 
-from dynslam_lab.experiments.robustness import _derived, by_kind, robustness_markdown, scene_kind
+from dynslam_lab.experiments.robustness import _derived, _sequence_labels, by_kind, robustness_markdown, robustness_plot, scene_kind
 
 
 def _rows() -> pd.DataFrame:
@@ -65,3 +65,13 @@ def test_scene_kind_reads_the_renderers_metadata(tmp_path):
     assert scene_kind(other) == ("-", "-")  # a real sequence: no renderer metadata
     (other / "synthetic.json").write_text("{not json")
     assert scene_kind(other) == ("-", "-")
+
+
+def test_plot_labels_each_sequence_with_its_room_and_camera(tmp_path):
+    df = _rows()
+    assert _sequence_labels(df, ["a", "c"]) == ["a\nflat, xyz", "c\nnoise, xyz"]
+    df.loc[df["sequence"] == "c", "room"] = "-"  # a sequence the renderer did not make: its name alone
+    assert _sequence_labels(df, ["a", "c"]) == ["a\nflat, xyz", "c"]
+    assert _sequence_labels(df.drop(columns=["room"]), ["a"]) == ["a"]
+    out = robustness_plot(df, tmp_path / "r.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
