@@ -8,7 +8,8 @@ import json
 import pandas as pd
 import pytest
 
-from dynslam_lab.experiments.robustness import _derived, _sequence_labels, by_kind, robustness_markdown, robustness_plot, scene_kind
+from dynslam_lab.experiments.robustness import (_derived, _sequence_labels, by_kind, robustness_markdown, robustness_plot,
+                                               scene_kind)
 
 
 def _rows() -> pd.DataFrame:
