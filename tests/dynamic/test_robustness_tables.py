@@ -76,3 +76,12 @@ def test_plot_labels_each_sequence_with_its_room_and_camera(tmp_path):
     assert _sequence_labels(df.drop(columns=["room"]), ["a"]) == ["a"]
     out = robustness_plot(df, tmp_path / "r.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_markdown_names_a_path_without_movers_that_does_not_track():
+    df = _rows()
+    ref = df.iloc[[0, 2]].copy()
+    ref["filter"], ref["frames"], ref["lost"] = "no movers", 240, [240, 10]  # a: not one frame; c: 4 %
+    md = robustness_markdown(_derived(pd.concat([df.assign(frames=240), ref], ignore_index=True)))
+    assert "the same path without movers lost more than 50% of its frames on: a (" in md
+    assert "on: a, c" not in md
