@@ -229,7 +229,7 @@ plot_trajectories(paths, plane=plane, ax=axes[2], title=f"walking_xyz, aligned (
 # here are those of this machine at this moment: compare the columns of one table, never two tables.
 #
 # On ten walking and stress sequences of 240 frames (docs/peers.md, "Walking and stress presets against
-# ORB-SLAM3") `full` was more accurate than ORB-SLAM3 on every one, and within a tenth of its error on the
-# six where ORB-SLAM3 follows the movers. Where ORB-SLAM3 copes on its own (`crowd_rpy`, `mixed_xyz`,
+# ORB-SLAM3") `full` was more accurate than ORB-SLAM3 on every one, and within a tenth of its error on six
+# of the seven where ORB-SLAM3 follows the movers (not on a plain room where our geometry fails too). Where ORB-SLAM3 copes on its own (`crowd_rpy`, `mixed_xyz`,
 # `panel_rpy`: 8-19 mm) a tenth would be below what either system reaches without movers. It took
 # 1.3-2.0x ORB-SLAM3's time per frame.
