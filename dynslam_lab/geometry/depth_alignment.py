@@ -273,6 +273,11 @@ class DenseTerm:
         good = np.isfinite(d) & (np.abs(d) <= self.max_distance)
         return idx[good], N[good], d[good]
 
+    def associated_fraction(self, T_c_w: np.ndarray) -> float:
+        """The share of the points that ``T_c_w`` associates (:meth:`associate`): how much of the frame's depth
+        the reference explains at that pose."""
+        return len(self.associate(T_c_w[:3, :3], T_c_w[:3, 3])[0]) / len(self.X)
+
     def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened residuals ``e (K,)`` of the associated points, their Jacobian ``(K, 6)`` in the pose
         step ``(omega, tau)`` (module docstring), and the whitened chi^2 at the gate

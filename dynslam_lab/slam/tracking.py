@@ -659,7 +659,7 @@ class Tracker:
         finally:
             self._dense = None
         T = se3_inv(frame.T_w_c)
-        self.dense_fraction = len(term.associate(T[:3, :3], T[:3, 3])[0]) / len(term.X)
+        self.dense_fraction = term.associated_fraction(T)
         self.n_inliers = n
         return n >= cfg.dense_min_inliers and self.dense_fraction >= cfg.dense_min_fraction
 
@@ -976,7 +976,7 @@ class Tracker:
             T, _ = optimize_pose(se3_inv(frame.T_w_c), self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx),
                                  self.camera, cfg.bf, rounds=1, max_iterations=cfg.joint_gn_iterations, dense=term,
                                  damped=False)
-            fraction = len(depth.associate(T[:3, :3], T[:3, 3])[0]) / len(depth.X) if depth is not None else 1.0
+            fraction = depth.associated_fraction(T) if depth is not None else 1.0
             moved_m, moved_deg = pose_distance(T @ frame.T_w_c)
             if fraction < cfg.dense_min_fraction or moved_m > JOINT_MAX_STEP[0] or moved_deg > JOINT_MAX_STEP[1]:
                 return False  # a refinement is a nudge: a jump says the image disagrees with the features
@@ -990,7 +990,7 @@ class Tracker:
         finally:
             self._dense = None
         T = se3_inv(frame.T_w_c)
-        fraction = len(depth.associate(T[:3, :3], T[:3, 3])[0]) / len(depth.X)
+        fraction = depth.associated_fraction(T)
         if n < cfg.min_track_inliers or fraction < cfg.dense_min_fraction:
             # rolled back: the feature pose, its matches and their outlier flags as they were (the joint BA's
             # outlier marks must not survive to drop matches of the feature pose)
