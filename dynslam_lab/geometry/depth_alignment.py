@@ -41,7 +41,7 @@ dense-tracked frame from the pose it gives (``TrackingConfig.dense_photometric_s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -272,6 +272,13 @@ class DenseTerm:
         d = np.einsum("ij,ij->i", N, diff)
         good = np.isfinite(d) & (np.abs(d) <= self.max_distance)
         return idx[good], N[good], d[good]
+
+    def every(self, step: int) -> "DenseTerm":
+        """The same term on every ``step``-th point (the points, their sigmas and ``charged`` thinned together)."""
+        if step <= 1:
+            return self
+        return replace(self, X=self.X[::step], sigma=self.sigma[::step],
+                       charged=None if self.charged is None else self.charged[::step])
 
     def associated_fraction(self, T_c_w: np.ndarray) -> float:
         """The share of the points that ``T_c_w`` associates (:meth:`associate`): how much of the frame's depth

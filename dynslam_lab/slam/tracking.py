@@ -956,8 +956,7 @@ class Tracker:
             term = depth = self._dense_term(frame, se3_inv(frame.T_w_c))
             if term is None:
                 return False
-            if cfg.joint_dense_step > 1:
-                term.X, term.sigma = term.X[:: cfg.joint_dense_step], term.sigma[:: cfg.joint_dense_step]
+            term = depth = term.every(cfg.joint_dense_step)
         if cfg.joint_photometric_scale > 0 and frame.gray_image is not None and self.last.gray_image is not None:
             k = cfg.joint_photometric_scale
             lf = self._image_level(frame, k)

@@ -419,3 +419,26 @@ def test_hybrid_term_appends_huber_bounded_photometric_rows():
     assert np.array_equal(e[n:][~big], e_p[~big]) and np.array_equal(J[n:][~big], J_p[~big])
     assert np.allclose(e[n:][big] ** 2, 2.0 * np.abs(e_p[big]))
     assert np.allclose(J[n:][big], J_p[big] * np.sqrt(2.0 / np.abs(e_p[big]))[:, None])
+
+
+def test_every_thins_the_points_their_sigmas_and_the_charged_mask_together():
+    """``DenseTerm.every(step)``: every ``step``-th point with its sigma and its ``charged`` flag (the joint
+    refinement's ``joint_dense_step``); the residuals of the thinned term are those of the thinned points, and
+    ``charged`` keeps the points' length (it once stayed at the full length, and the gate failed)."""
+    T_w_ref = make_pose(so3_exp([0.0, 0.05, 0.0]), [0.0, 0.0, 0.0])
+    T_w_cur = make_pose(so3_exp([0.01, 0.07, -0.01]), [0.03, -0.02, 0.05])
+    term = _term(T_w_ref, T_w_cur)
+    term.charged = np.arange(len(term.X)) % 3 != 0
+    thin = term.every(2)
+    assert thin is not term and len(thin.X) == (len(term.X) + 1) // 2
+    assert np.array_equal(thin.X, term.X[::2]) and np.array_equal(thin.sigma, term.sigma[::2])
+    assert np.array_equal(thin.charged, term.charged[::2])
+    T_c_w = se3_inv(T_w_cur)
+    e, J, gate = thin.residuals(T_c_w[:3, :3], T_c_w[:3, 3])
+    idx, _, d = term.associate(T_c_w[:3, :3], T_c_w[:3, 3])
+    even = idx % 2 == 0
+    assert even.sum() > 100 and np.allclose(e, d[even] / term.sigma[idx[even]])
+    missing = term.charged.copy()
+    missing[idx] = False
+    assert len(gate) == int(missing[::2].sum())
+    assert term.every(1) is term
