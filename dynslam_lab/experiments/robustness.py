@@ -128,27 +128,36 @@ def _stress_preset(name: str, n_frames: int | None) -> stress.StressPreset | Non
     return None
 
 
-def _coverage(root: Path) -> tuple[float, float]:
-    """Mean and maximum image fraction covered by moving instances (``synthetic.json`` statistics)."""
-    path = Path(root) / "synthetic.json"
+def _metadata(root: Path) -> dict:
+    """A rendered sequence's ``synthetic.json`` as a dict; empty when there is none or it does not parse (a real
+    sequence)."""
     try:
-        stats = json.loads(path.read_text()).get("stats") or {}
+        meta = json.loads((Path(root) / "synthetic.json").read_text())
     except (OSError, ValueError):
-        return float("nan"), float("nan")
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def _coverage(meta: dict) -> tuple[float, float]:
+    """Mean and maximum image fraction covered by moving instances (the ``stats`` of :func:`_metadata`)."""
+    stats = meta.get("stats") or {}
     return float(stats.get("moving_cover_mean", float("nan"))), float(stats.get("moving_cover_max", float("nan")))
+
+
+def _kind(meta: dict) -> tuple[str, str]:
+    """``(room, camera)`` from :func:`_metadata` (:func:`scene_kind`)."""
+    preset = meta.get("preset") or {}
+    if not isinstance(preset, dict):
+        return "-", "-"
+    room = str(preset.get("style") or ("office" if meta.get("kind") == "office" else "-"))
+    return room, str(preset.get("motion") or "-")
 
 
 def scene_kind(root: Path) -> tuple[str, str]:
     """``(room, camera)`` of a rendered sequence (``synthetic.json``): the stress scene's room surface style
     (``flat``, ``noise``, ``pattern``, ``photo``) or ``office`` for an office preset, and the camera's motion
     (``static``, ``xyz``, ``rpy``, ``halfsphere``, ...); ``("-", "-")`` for a sequence the renderer did not make."""
-    try:
-        meta = json.loads((Path(root) / "synthetic.json").read_text())
-        preset = meta.get("preset") or {}
-    except (OSError, ValueError, AttributeError):
-        return "-", "-"
-    room = str(preset.get("style") or ("office" if meta.get("kind") == "office" else "-"))
-    return room, str(preset.get("motion") or "-")
+    return _kind(_metadata(root))
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -248,8 +257,9 @@ def run_robustness(sequences, outdir: str | Path, config: Config | None = None, 
     fingerprint = json.dumps(config_to_dict(config), sort_keys=True, default=str)
     rows = []
     for spec in sequences:
-        cov_mean, cov_max = _coverage(spec.root)
-        room, camera = scene_kind(spec.root)
+        meta = _metadata(spec.root)  # read once: coverage and kind of scene
+        cov_mean, cov_max = _coverage(meta)
+        room, camera = _kind(meta)
         jobs = [(label, spec.root, f, d) for label, (f, d) in specs.items()]
         if want_reference and spec.reference is not None:
             jobs.append((REFERENCE, spec.reference, "none", "none"))
