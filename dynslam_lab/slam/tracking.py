@@ -531,8 +531,12 @@ class Tracker:
         # T_w_c: the tracked pose relative to the keyframe's pose now (after its first local BA), so that the
         # keyframe's later moves (loop corrections) carry it along (dense_model_pose = "tracked")
         self._kf_depth[kf.id] = DepthSource(src.V, src.N, se3_inv(kf.T_w_c) @ last.T_w_c)
-        keep = sorted(k for k in self._kf_depth if k in self.map.keyframes)[-2 * self.cfg.dense_model_keyframes :]
-        self._kf_depth = {k: self._kf_depth[k] for k in keep}
+        self._kf_depth = self._recent_keyframes(self._kf_depth, 2 * self.cfg.dense_model_keyframes)
+
+    def _recent_keyframes(self, per_keyframe: dict, n: int) -> dict:
+        """``per_keyframe`` (keyframe id -> data) cut to the ``n`` most recent keyframes still in the map."""
+        keep = sorted(k for k in per_keyframe if k in self.map.keyframes)[-n:]
+        return {k: per_keyframe[k] for k in keep}
 
     def _note_keyframe_level(self) -> None:
         """Keep the image level of the last frame when it became a keyframe (the joint refinement's reference,
@@ -544,8 +548,7 @@ class Tracker:
                 or kf.id in self._kf_levels):
             return
         self._kf_levels[kf.id] = self._image_level(last, cfg.joint_photometric_scale)
-        keep = sorted(k for k in self._kf_levels if k in self.map.keyframes)[-JOINT_KEYFRAME_LEVELS:]
-        self._kf_levels = {k: self._kf_levels[k] for k in keep}
+        self._kf_levels = self._recent_keyframes(self._kf_levels, JOINT_KEYFRAME_LEVELS)
 
     def _joint_reference(self) -> tuple[ImageLevel, np.ndarray]:
         """The image level the joint refinement aligns a frame's edges to, and its ``T_r_w``: the reference
