@@ -124,7 +124,7 @@ figure_explorer(draw_restoration, name="06 restoration", delta_1=float_slider("d
 # and this one, Zhang et al.'s levels (high and medium removed at once, low only with geometric
 # evidence) and restoration. Each ring is a stage that flagged the keypoint; cyan squares were
 # given back. $\delta_1$ starts at 0.7, just above the $\delta$ the levels leave (below it nothing comes back;
-above it, more than 0.7 gives nothing more).
+# above it, more than 0.7 gives nothing more).
 
 # %% figures=1
 prev = seq[9]

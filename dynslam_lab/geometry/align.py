@@ -234,7 +234,7 @@ def rigid_alignment_batch(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.
 
 def rigid_inliers_batch(R: np.ndarray, t: np.ndarray, P: np.ndarray, Q: np.ndarray,
                         tolerance: np.ndarray | float) -> np.ndarray:
-    """``(I, N)`` bool: ``|R_i P_n + t_i - Q_n| < tolerance_n`` for every hypothesis ``(R_i (3, 3), t_i (3,))``
+    r"""``(I, N)`` bool: ``|R_i P_n + t_i - Q_n| < tolerance_n`` for every hypothesis ``(R_i (3, 3), t_i (3,))``
     of ``R (I, 3, 3), t (I, 3)`` and every pair ``P_n -> Q_n`` of ``P, Q (N, 3)``.
 
     The squared residual expands as
