@@ -1,0 +1,225 @@
+"""Camera effects on a recorded RGB-D sequence: what another camera, or another renderer, does differently.
+
+The synthetic renderer (:mod:`~dynslam_lab.datasets.synthetic`) draws every frame with one exposure, a sharp
+0.5 px lens and 30 frames a second. Real cameras and other renderers do not: TUM RGB-D's Kinect recorded with
+auto-exposure on (the whole image brightens or darkens as a person in dark clothes walks by), a shaken hand-held
+camera blurs, cheap lenses darken the corners, and sequences come at other frame rates. Methods tuned on one
+renderer's images can fail on another's (docs/robustness.md, "Camera effects"). :func:`apply_camera_effects`
+writes a copy of a sequence in the TUM layout with any of these effects, deterministically from ``seed``, so
+that a run on the copy can be compared with a run on the original (``benchmarks/camera_effects.py``):
+
+* **exposure**: the colour image times a gain that drifts from frame to frame (``log g`` a random walk with steps
+  of ``exposure`` and, with probability ``exposure_jump_rate``, a jump of ``exposure_jump``), held to
+  ``exposure_range``;
+* **motion blur**: a straight blur of ``motion_blur_px`` px at most (a length drawn from half that to all of it,
+  a direction drifting from frame to frame);
+* **vignetting and response**: ``255 (I / 255)^gamma`` times ``1 - vignette r^2`` (``r`` = 1 at the corners);
+* **noise**: extra Gaussian colour noise of ``noise`` grey levels;
+* **frame rate**: only every ``every``-th frame (``rgb.txt`` and ``depth.txt`` thinned; ``moving.txt``, when there
+  is one, then lists for each kept frame the instances that moved since the last kept frame).
+
+Depth, ground truth, masks and every other file are carried over unchanged (hard links where the file system
+allows). The gain and blur of each frame go to ``camera_effects.csv``, the effects to ``camera_effects.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .tum import DatasetError, read_file_list
+
+__all__ = ["CameraEffects", "apply_camera_effects", "EFFECT_PRESETS"]
+
+
+@dataclass(frozen=True)
+class CameraEffects:
+    """The effects :func:`apply_camera_effects` applies (the defaults change nothing)."""
+
+    exposure: float = 0.0  # std of the per-frame step of the log gain (0.03: ~3 % a frame)
+    exposure_jump: float = 0.15  # std of a sudden change of the log gain
+    exposure_jump_rate: float = 0.0  # chance per frame of such a jump
+    exposure_range: tuple[float, float] = (0.7, 1.3)  # the gain is held inside
+    motion_blur_px: float = 0.0  # longest straight blur, px
+    vignette: float = 0.0  # darkening at the image corners (0.35: 35 %)
+    gamma: float = 1.0  # camera response 255 (I / 255)^gamma
+    noise: float = 0.0  # extra Gaussian colour noise, grey levels
+    every: int = 1  # keep every n-th frame
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("exposure", "exposure_jump", "motion_blur_px", "noise"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"CameraEffects.{name} must be >= 0, got {getattr(self, name)}")
+        if not 0 <= self.exposure_jump_rate <= 1:
+            raise ValueError(f"CameraEffects.exposure_jump_rate must be in [0, 1], got {self.exposure_jump_rate}")
+        lo, hi = self.exposure_range
+        if not 0 < lo <= 1 <= hi:
+            raise ValueError(f"CameraEffects.exposure_range must hold 1 with a positive low end, got {self.exposure_range}")
+        if not 0 <= self.vignette < 1:
+            raise ValueError(f"CameraEffects.vignette must be in [0, 1), got {self.vignette}")
+        if not self.gamma > 0:
+            raise ValueError(f"CameraEffects.gamma must be > 0, got {self.gamma}")
+        if int(self.every) != self.every or self.every < 1:
+            raise ValueError(f"CameraEffects.every must be an integer >= 1, got {self.every}")
+
+    @property
+    def changes_colour(self) -> bool:
+        return bool(self.exposure or (self.exposure_jump and self.exposure_jump_rate) or self.motion_blur_px
+                    or self.vignette or self.gamma != 1.0 or self.noise)
+
+
+#: Named effects for ``benchmarks/camera_effects.py`` (each one alone, at a strength a real camera shows).
+EFFECT_PRESETS: dict[str, CameraEffects] = {
+    "exposure": CameraEffects(exposure=0.03, exposure_jump_rate=0.03),
+    "blur": CameraEffects(motion_blur_px=7.0),
+    "vignette": CameraEffects(vignette=0.35, gamma=0.6),
+    "noise": CameraEffects(noise=6.0),
+    "rate15": CameraEffects(every=2),
+    "rate10": CameraEffects(every=3),
+}
+
+
+def _blur_kernel(length: float, angle: float) -> np.ndarray:
+    """A straight blur of ``length`` px at ``angle`` (radians): the segment drawn with sub-pixel samples into an
+    odd square kernel, normalised to sum 1."""
+    half = int(math.ceil(length / 2)) + 1
+    k = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
+    for s in np.linspace(-length / 2, length / 2, max(2, int(4 * length) + 1)):
+        k[int(round(half + s * math.sin(angle))), int(round(half + s * math.cos(angle)))] += 1.0
+    return k / k.sum()
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def _copy_tree(src: Path, dst: Path, skip: set[str]) -> None:
+    for p in src.iterdir():
+        if p.name in skip:
+            continue
+        if p.is_dir():
+            (dst / p.name).mkdir()
+            _copy_tree(p, dst / p.name, set())
+        else:
+            _link_or_copy(p, dst / p.name)
+
+
+def _thin_list(src: Path, dst: Path, keep_every: int) -> list[float]:
+    """``src`` (a TUM list file) with only every ``keep_every``-th data line, comments kept; returns the kept
+    timestamps."""
+    lines, kept, n = [], [], 0
+    for line in src.read_text().splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            lines.append(line)
+            continue
+        if n % keep_every == 0:
+            lines.append(line)
+            kept.append(float(line.split()[0]))
+        n += 1
+    dst.write_text("\n".join(lines) + "\n")
+    return kept
+
+
+def _thin_moving(src: Path, dst: Path, kept_rgb: list[float]) -> None:
+    """``moving.txt`` for the kept colour frames: each lists the instances that moved in any frame since the
+    previous kept one (the renderer's rows are 'moved since the previous colour frame')."""
+    comments, rows = [], []
+    for line in src.read_text().splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            comments.append(line)
+        else:
+            parts = line.split()
+            rows.append((float(parts[0]), {int(x) for x in parts[1:]}))
+    rows.sort()
+    out, i, prev = list(comments), 0, -math.inf
+    for ts in kept_rgb:
+        ids: set[int] = set()
+        while i < len(rows) and rows[i][0] <= ts + 1e-6:
+            if rows[i][0] > prev + 1e-6:
+                ids |= rows[i][1]
+            i += 1
+        out.append(" ".join([f"{ts:.6f}", *(str(x) for x in sorted(ids))]))
+        prev = ts
+    dst.write_text("\n".join(out) + "\n")
+
+
+def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffects) -> Path:
+    """Write ``src`` (a sequence in the TUM layout) to the new folder ``dst`` with ``effects`` applied (module
+    docstring). ``dst`` must not exist: the copy is made in a temporary folder beside it and renamed when
+    complete, so an interrupted call leaves nothing behind and never touches a file it did not make. A colour
+    image that cannot be read raises :class:`~dynslam_lab.datasets.tum.DatasetError` naming it."""
+    src, dst = Path(src), Path(dst)
+    if not (src / "rgb.txt").is_file() or not (src / "depth.txt").is_file():
+        raise DatasetError(f"{src}: not a sequence in the TUM layout (rgb.txt and depth.txt expected)")
+    if dst.exists():
+        raise FileExistsError(f"{dst} exists; camera effects are written to a new folder only")
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
+    try:
+        colour = effects.changes_colour
+        skip = {"rgb.txt", "depth.txt", "moving.txt"} | ({"rgb"} if colour else set())
+        _copy_tree(src, tmp, skip)
+        kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", effects.every)
+        _thin_list(src / "depth.txt", tmp / "depth.txt", effects.every)
+        if (src / "moving.txt").is_file():
+            _thin_moving(src / "moving.txt", tmp / "moving.txt", kept)
+        stats = []
+        if colour:
+            _, rows = read_file_list(src / "rgb.txt")
+            rs = np.random.default_rng(effects.seed)
+            log_gain, angle = 0.0, float(rs.uniform(0, math.pi))
+            lo, hi = (math.log(v) for v in effects.exposure_range)
+            shade = None
+            for row in rows:  # every frame, kept or not: the same gains as the full-rate copy
+                rel = row[0]
+                img = cv2.imread(str(src / rel), cv2.IMREAD_UNCHANGED)
+                if img is None:
+                    raise DatasetError(f"{src / rel}: cannot read the colour image (missing or corrupt)")
+                im = img.astype(np.float32)
+                log_gain += rs.normal(0.0, effects.exposure) if effects.exposure else 0.0
+                if effects.exposure_jump_rate and rs.random() < effects.exposure_jump_rate:
+                    log_gain += rs.normal(0.0, effects.exposure_jump)
+                log_gain = min(max(log_gain, lo), hi)
+                length = float(rs.uniform(0.5, 1.0) * effects.motion_blur_px) if effects.motion_blur_px else 0.0
+                angle += float(rs.normal(0.0, 0.3))
+                if effects.gamma != 1.0:
+                    im = np.float32(255.0) * (im / np.float32(255.0)) ** np.float32(effects.gamma)
+                if effects.vignette:
+                    if shade is None:
+                        h, w = im.shape[:2]
+                        yy, xx = np.mgrid[:h, :w].astype(np.float32)
+                        r2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+                        shade = 1.0 - np.float32(effects.vignette) * r2
+                        shade = shade[..., None] if im.ndim == 3 else shade
+                    im *= shade
+                im *= np.float32(math.exp(log_gain))
+                if length >= 1.0:
+                    im = cv2.filter2D(im, -1, _blur_kernel(length, angle), borderType=cv2.BORDER_REFLECT)
+                if effects.noise:
+                    im += rs.normal(0.0, effects.noise, im.shape).astype(np.float32)
+                out = tmp / rel
+                out.parent.mkdir(parents=True, exist_ok=True)
+                if not cv2.imwrite(str(out), np.clip(np.rint(im), 0, 255).astype(img.dtype)):
+                    raise OSError(f"{out}: cannot write the colour image")
+                stats.append((rel, math.exp(log_gain), length))
+        with open(tmp / "camera_effects.csv", "w") as f:
+            f.write("rgb,gain,blur_px\n")
+            f.writelines(f"{rel},{g:.6f},{b:.3f}\n" for rel, g, b in stats)
+        (tmp / "camera_effects.json").write_text(json.dumps({"source": str(src), **asdict(effects)}, indent=1))
+        os.rename(tmp, dst)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return dst
