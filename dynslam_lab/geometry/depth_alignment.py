@@ -50,7 +50,7 @@ from ..camera import PinholeCamera
 from .projection import projection_jacobian
 from .se3 import make_pose, skew, so3_exp, so3_log
 
-__all__ = ["DepthGrid", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
+__all__ = ["DepthGrid", "brightness_transfer", "smooth_depth", "vertex_normal_grid", "DenseTerm", "DepthSource", "fuse_depth_model", "depth_sigma",
            "DenseAlignment", "align_depth", "reduced_depth_points", "ImageLevel", "image_level", "PhotometricTerm",
            "photometric_term"]
 
@@ -415,13 +415,20 @@ class PhotometricTerm:
         d e / d omega = (a x p) / sigma,     d e / d tau = -a / sigma
 
     It fixes what a plane's depth leaves free (a slide along a plain wall, the turn about its normal) wherever
-    the image has an edge: a poster's border, the line where the wall meets the floor."""
+    the image has an edge: a poster's border, the line where the wall meets the floor.
+
+    With ``affine`` (the default) the frame's intensities are first carried to the reference's brightness,
+    ``c_j -> a c_j + b``, by :func:`brightness_transfer` fitted on the samples at the pose being evaluated (a
+    camera's auto-exposure brightens or darkens the whole image between two frames). ``a`` and ``b`` are fitted
+    afresh at each evaluation, not carried as unknowns: the Jacobian above is kept (for fixed weights the pose where
+    the gradient vanishes is the one with ``a, b`` among the unknowns; only the Gauss-Newton steps are shorter)."""
 
     X: np.ndarray
     c: np.ndarray
     ref: ImageLevel
     T_r_w: np.ndarray
     sigma: float
+    affine: bool = True
 
     def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals ``(K,)`` of the samples that ``(R, t)`` (``T_c_w``) puts inside the reference image
@@ -451,11 +458,45 @@ class PhotometricTerm:
         J = np.empty((len(idx), 6))
         J[:, :3] = np.cross(a, p) / self.sigma
         J[:, 3:] = -a / self.sigma
-        return idx, (I - self.c[idx]) / self.sigma, J
+        c = self.c[idx]
+        if self.affine:
+            gain, bias = brightness_transfer(c, I, self.sigma)
+            c = gain * c + bias
+        return idx, (I - c) / self.sigma, J
+
+
+def brightness_transfer(c: np.ndarray, I: np.ndarray, sigma: float, scale: float = 2.0, rounds: int = 3,
+                        gain_range: tuple[float, float] = (0.5, 2.0)) -> tuple[float, float]:
+    """The affine brightness transfer ``(gain, bias)`` that maps a frame's intensities ``c (K,)`` onto the
+    reference's ``I (K,)`` at the same scene points, ``I ~ gain c + bias``. A camera's auto-exposure scales the
+    whole image between two frames (TUM RGB-D was recorded with it on); the photometric term of Steinbruecker et
+    al. (2011) assumes equal brightness, Engel et al. (2018, DSO) model the change as this affine map per pair of
+    frames. Least squares, then ``rounds`` passes reweighted with Cauchy's weight ``1 / (1 + (r / (scale
+    sigma))^2)`` on the residuals ``r`` of the last fit (occlusions, highlights and movers do not pull it), the
+    gain held to ``gain_range``. The identity with fewer than 20 samples or no spread of intensities."""
+    if len(c) < 20:
+        return 1.0, 0.0
+    gain, bias = 1.0, 0.0
+    w = np.ones(len(c))
+    s2 = (scale * sigma) ** 2
+    for k in range(rounds + 1):
+        if k:
+            r = I - gain * c - bias
+            w = 1.0 / (1.0 + r * r / s2)
+        sw = w.sum()
+        mc, mi = (w @ c) / sw, (w @ I) / sw
+        dc = c - mc
+        var = w @ (dc * dc)
+        if not var > 1e-9 * sw:
+            return gain, bias
+        gain = float(np.clip((w @ (dc * (I - mi))) / var, *gain_range))
+        bias = float(mi - gain * mc)
+    return gain, bias
 
 
 def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.ndarray, sigma: float,
-                     min_gradient: float = 2.0, max_samples: int = 3000, exclude: np.ndarray | None = None) -> PhotometricTerm | None:
+                     min_gradient: float = 2.0, max_samples: int = 3000, exclude: np.ndarray | None = None,
+                     affine: bool = True) -> PhotometricTerm | None:
     """The :class:`PhotometricTerm` of a frame's level against the reference's: the frame's pixels with depth and
     a gradient of at least ``min_gradient`` grey levels per pixel, the ``max_samples`` strongest, leaving out
     ``exclude`` (``(h, w)`` bool at the level: pixels the screening judged dynamic). None with fewer than 20."""
@@ -470,7 +511,7 @@ def photometric_term(frame_level: ImageLevel, ref_level: ImageLevel, T_r_w: np.n
         keep = np.argpartition(-mag[i, j], max_samples)[:max_samples]
         i, j = i[keep], j[keep]
     X = frame_level.camera.backproject(np.column_stack([j, i]), frame_level.z[i, j])
-    return PhotometricTerm(X, frame_level.I[i, j].astype(np.float64), ref_level, T_r_w, float(sigma))
+    return PhotometricTerm(X, frame_level.I[i, j].astype(np.float64), ref_level, T_r_w, float(sigma), bool(affine))
 
 
 def _huber_weights(e: np.ndarray, huber: float) -> np.ndarray:

@@ -177,6 +177,7 @@ class TrackingConfig:
     dense_view_margin_px: float = -1.0  # px; >= 0: only the depth samples that the motion prediction puts at least this far inside the reference's image cost the association gate when left unassociated (a sample the reference never saw is no evidence; charged, such samples pull the pose towards no motion: loop_flat seed 8, a slide of 32 mm a frame tracked as 9); negative (the default): every sample, as before, because that pull also damps the velocity the motion prediction carries across a plain wall (16 px: loop_flat worst of 12 seeds 46.9 -> 40.4 mm, but 3 seeds over 20 mm instead of 1); ours, docs/tracking.md "Samples the last frame never saw"
     dense_photometric_sigma: float = 4.0  # grey levels; > 0: a frame tracked with the dense term starts from (and is held to) the pose that aligns its image edges and depth to the last frame's, coarse to fine (hybrid RGB-D odometry, Steinbruecker et al. 2011), not the constant-velocity prediction: a plain wall's depth leaves a slide along it free (loop_flat seed 8: 20-30 mm of error a frame along the wall -> 0.1-3 mm); the residuals are whitened with this sigma; 0 = off (the depth term alone, as before); ours, docs/tracking.md "Image edges on a plain wall"
     dense_photometric_scales: tuple[int, ...] = (4, 2)  # image reductions of the photometric alignment, coarse to fine; ours
+    photometric_affine: bool = True  # both photometric terms (dense_photometric_sigma, joint_photometric_scale) fit an affine brightness transfer (gain, bias) between the frame and its reference before taking the residuals: a camera's auto-exposure changes the whole image's brightness between frames (Engel et al. 2018, DSO, model it so); False = equal brightness assumed (Steinbruecker et al. 2011); docs/tracking.md "Exposure changes"
     dense_min_fraction: float = 0.5  # a dense-tracked pose is accepted when this fraction of the frame's depth samples is associated; ours
     dense_min_inliers: int = 0  # ... and it keeps at least this many feature inliers (the planes may leave a direction free); ours
     dense_prior_translation: float = 0.02  # m, the dense-tracked pose is held to the motion prediction with this sigma (for the directions the planes leave free); ours
@@ -689,7 +690,8 @@ class Tracker:
         for scale in cfg.dense_photometric_scales:
             lf, lr = self._image_level(frame, scale), self._image_level(last, scale)
             exclude = self._dynamic_cells(frame, lf.I.shape, stride=scale)
-            photo = photometric_term(lf, lr, T_r_w, cfg.dense_photometric_sigma, exclude=exclude)
+            photo = photometric_term(lf, lr, T_r_w, cfg.dense_photometric_sigma, exclude=exclude,
+                                     affine=cfg.photometric_affine)
             if photo is not None:
                 T = align_depth(term, T, iterations=10, photometric=photo).T_c_w
         return T
@@ -966,7 +968,7 @@ class Tracker:
             lr, T_r_w = self._joint_reference()
             photo = photometric_term(lf, lr, T_r_w, cfg.joint_photometric_sigma,
                                      exclude=self._dynamic_cells(frame, lf.I.shape, stride=k),
-                                     max_samples=cfg.joint_photometric_samples)
+                                     max_samples=cfg.joint_photometric_samples, affine=cfg.photometric_affine)
             if photo is not None:
                 term = HybridTerm(depth, photo)
         if term is None:
