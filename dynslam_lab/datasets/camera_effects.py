@@ -15,8 +15,9 @@ that a run on the copy can be compared with a run on the original (``benchmarks/
   a direction drifting from frame to frame);
 * **vignetting and response**: ``255 (I / 255)^gamma`` times ``1 - vignette r^2`` (``r`` = 1 at the corners);
 * **noise**: extra Gaussian colour noise of ``noise`` grey levels;
-* **frame rate**: only every ``every``-th frame (``rgb.txt`` and ``depth.txt`` thinned; ``moving.txt``, when there
-  is one, then lists for each kept frame the instances that moved since the last kept frame).
+* **frame rate**: only every ``every``-th colour frame (``rgb.txt`` thinned, ``depth.txt`` to the depth frames
+  nearest the kept colour frames, ``associations.txt`` to their rows; ``moving.txt``, when there is one, then lists
+  for each kept frame the instances that moved since the last kept frame).
 
 Depth, ground truth, masks and every other file are carried over unchanged (hard links where the file system
 allows). The gain and blur of each frame go to ``camera_effects.csv``, the effects to ``camera_effects.json``.
@@ -116,20 +117,30 @@ def _copy_tree(src: Path, dst: Path, skip: set[str]) -> None:
             _link_or_copy(p, dst / p.name)
 
 
-def _thin_list(src: Path, dst: Path, keep_every: int) -> list[float]:
-    """``src`` (a TUM list file) with only every ``keep_every``-th data line, comments kept; returns the kept
-    timestamps."""
+def _thin_list(src: Path, dst: Path, keep) -> list[float]:
+    """``src`` (a TUM list file) with only the data lines ``keep(n, timestamp)`` accepts (``n`` counts the data
+    lines), comments kept; returns the kept timestamps."""
     lines, kept, n = [], [], 0
     for line in src.read_text().splitlines():
         if not line.strip() or line.lstrip().startswith("#"):
             lines.append(line)
             continue
-        if n % keep_every == 0:
+        ts = float(line.split()[0])
+        if keep(n, ts):
             lines.append(line)
-            kept.append(float(line.split()[0]))
+            kept.append(ts)
         n += 1
     dst.write_text("\n".join(lines) + "\n")
     return kept
+
+
+def _nearest(stamps: np.ndarray, targets: list[float]) -> set[float]:
+    """The entries of the sorted ``stamps`` nearest to each of ``targets``."""
+    if not len(stamps) or not targets:
+        return set()
+    i = np.clip(np.searchsorted(stamps, targets), 1, len(stamps) - 1)
+    left, right = stamps[i - 1], stamps[i]
+    return {float(v) for v in np.where(np.abs(np.asarray(targets) - left) <= np.abs(right - np.asarray(targets)), left, right)}
 
 
 def _thin_moving(src: Path, dst: Path, kept_rgb: list[float]) -> None:
@@ -169,10 +180,18 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
     tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
     try:
         colour = effects.changes_colour
-        skip = {"rgb.txt", "depth.txt", "moving.txt"} | ({"rgb"} if colour else set())
+        skip = {"rgb.txt", "depth.txt", "associations.txt", "moving.txt"} | ({"rgb"} if colour else set())
         _copy_tree(src, tmp, skip)
-        kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", effects.every)
-        _thin_list(src / "depth.txt", tmp / "depth.txt", effects.every)
+        every = int(effects.every)
+        kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", lambda n, ts: n % every == 0)
+        # the depth frames nearest to the kept colour frames (a real sequence's depth list need not pair with its
+        # colour list line by line), and the association file's rows of the kept colour frames
+        depth_stamps, _ = read_file_list(src / "depth.txt")
+        near = _nearest(np.sort(depth_stamps), kept)
+        _thin_list(src / "depth.txt", tmp / "depth.txt", lambda n, ts: ts in near)
+        if (src / "associations.txt").is_file():
+            kept_set = set(kept)
+            _thin_list(src / "associations.txt", tmp / "associations.txt", lambda n, ts: ts in kept_set)
         if (src / "moving.txt").is_file():
             _thin_moving(src / "moving.txt", tmp / "moving.txt", kept)
         stats = []

@@ -147,3 +147,27 @@ def test_summary_counts_runs_within_the_bound_and_ratios_to_the_original():
     md = camera_effects_markdown(df)
     assert "| exposure | geometry | 2 | 1 | 0.0430 | 0.0800 | 4.75 | 8.00 | 4 |" in md
     assert md.index(f"| {ORIGINAL} |") < md.index("| exposure |")
+
+
+def test_a_lower_frame_rate_keeps_the_depth_frames_that_pair_with_the_kept_colour_frames(tmp_path):
+    """As in a real TUM sequence, the depth list does not pair with the colour list line by line (one depth frame
+    more at the start, each 10 ms later): the kept depth frames are those nearest the kept colour frames, and an
+    association file keeps the rows of the kept colour frames."""
+    src = _sequence(tmp_path / "src")
+    stamps = [100.0 - 1 / 30 + 0.01] + [100.0 + i / 30 + 0.01 for i in range(N)]
+    lines = ["# depth"]
+    for k, ts in enumerate(stamps):
+        name = f"depth/{ts:.6f}.png"
+        cv2.imwrite(str(src / name), np.full((48, 64), 10000 + k, np.uint16))
+        lines.append(f"{ts:.6f} {name}")
+    (src / "depth.txt").write_text("\n".join(lines) + "\n")
+    rgb = [l.split() for l in (src / "rgb.txt").read_text().splitlines() if l and not l.startswith("#")]
+    (src / "associations.txt").write_text("".join(f"{r[0]} {r[1]} {stamps[i + 1]:.6f} depth/{stamps[i + 1]:.6f}.png\n"
+                                                  for i, r in enumerate(rgb)))
+    out = apply_camera_effects(src, tmp_path / "out", CameraEffects(every=2))
+    kept_depth = [float(l.split()[0]) for l in (out / "depth.txt").read_text().splitlines() if l and not l.startswith("#")]
+    assert np.allclose(kept_depth, [100 + i / 30 + 0.01 for i in (0, 2, 4, 6)])
+    assert len((out / "associations.txt").read_text().splitlines()) == 4
+    seq = TumSequence(out)
+    assert len(seq) == 4
+    assert len(TumSequence(out, associations=False)) == 4  # rgb.txt and depth.txt alone associate too
