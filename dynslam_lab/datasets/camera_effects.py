@@ -36,9 +36,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .tum import DatasetError, read_file_list
+from .tum import DatasetError, read_file_list, read_moving
 
-__all__ = ["CameraEffects", "apply_camera_effects", "EFFECT_PRESETS"]
+__all__ = ["CameraEffects", "apply_camera_effects", "effects_record", "EFFECT_PRESETS"]
 
 
 @dataclass(frozen=True)
@@ -143,18 +143,14 @@ def _nearest(stamps: np.ndarray, targets: list[float]) -> set[float]:
     return {float(v) for v in np.where(np.abs(np.asarray(targets) - left) <= np.abs(right - np.asarray(targets)), left, right)}
 
 
-def _thin_moving(src: Path, dst: Path, kept_rgb: list[float]) -> None:
+def _thin_moving(src_root: Path, dst: Path, kept_rgb: list[float]) -> None:
     """``moving.txt`` for the kept colour frames: each lists the instances that moved in any frame since the
-    previous kept one (the renderer's rows are 'moved since the previous colour frame')."""
-    comments, rows = [], []
-    for line in src.read_text().splitlines():
-        if not line.strip() or line.lstrip().startswith("#"):
-            comments.append(line)
-        else:
-            parts = line.split()
-            rows.append((float(parts[0]), {int(x) for x in parts[1:]}))
-    rows.sort()
-    out, i, prev = list(comments), 0, -math.inf
+    previous kept one (the renderer's rows, read by :func:`~dynslam_lab.datasets.tum.read_moving`, are 'moved
+    since the previous colour frame')."""
+    rows = sorted(read_moving(src_root).items())
+    out = ["# instances whose surface moved more than 1 mm since the previous kept colour frame",
+           "# timestamp id id ..."]
+    i, prev = 0, -math.inf
     for ts in kept_rgb:
         ids: set[int] = set()
         while i < len(rows) and rows[i][0] <= ts + 1e-6:
@@ -164,6 +160,12 @@ def _thin_moving(src: Path, dst: Path, kept_rgb: list[float]) -> None:
         out.append(" ".join([f"{ts:.6f}", *(str(x) for x in sorted(ids))]))
         prev = ts
     dst.write_text("\n".join(out) + "\n")
+
+
+def effects_record(src: str | Path, effects: CameraEffects) -> dict:
+    """What ``camera_effects.json`` of a copy holds: its source and its effects, as JSON gives them back (the copy
+    is recognised by this record: ``experiments.camera_effects.effect_copy``)."""
+    return json.loads(json.dumps({"source": str(src), **asdict(effects)}))
 
 
 def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffects) -> Path:
@@ -193,7 +195,7 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
             kept_set = set(kept)
             _thin_list(src / "associations.txt", tmp / "associations.txt", lambda n, ts: ts in kept_set)
         if (src / "moving.txt").is_file():
-            _thin_moving(src / "moving.txt", tmp / "moving.txt", kept)
+            _thin_moving(src, tmp / "moving.txt", kept)
         stats = []
         if colour:
             _, rows = read_file_list(src / "rgb.txt")
@@ -236,7 +238,7 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
         with open(tmp / "camera_effects.csv", "w") as f:
             f.write("rgb,gain,blur_px\n")
             f.writelines(f"{rel},{g:.6f},{b:.3f}\n" for rel, g, b in stats)
-        (tmp / "camera_effects.json").write_text(json.dumps({"source": str(src), **asdict(effects)}, indent=1))
+        (tmp / "camera_effects.json").write_text(json.dumps(effects_record(src, effects), indent=1))
         os.rename(tmp, dst)
     finally:
         if tmp.exists():

@@ -5,7 +5,7 @@ from our renderer's in ways no scene layout varies: auto-exposure, motion blur, 
 curve, more noise, another frame rate (:mod:`~dynslam_lab.datasets.camera_effects`). This module writes a copy
 of each sequence with each effect (:data:`~dynslam_lab.datasets.camera_effects.EFFECT_PRESETS`, or any
 :class:`~dynslam_lab.datasets.camera_effects.CameraEffects`), runs the filters on the original and on every
-copy (:func:`~dynslam_lab.experiments.robustness.run_one`), and reports per effect and filter how many runs stay
+copy (:func:`~dynslam_lab.experiments.robustness.resumable_run`), and reports per effect and filter how many runs stay
 within 0.05 m, the median and worst ATE, and the median and worst ratio of ATE to the same filter on the
 original sequence (``docs/robustness.md``, "Camera effects").
 """
@@ -13,16 +13,14 @@ original sequence (``docs/robustness.md``, "Camera effects").
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from ..config import Config, config_to_dict
-from ..datasets.camera_effects import EFFECT_PRESETS, CameraEffects, apply_camera_effects
-from ..datasets.tum import TumSequence
-from .robustness import ATE_BOUND_M, FILTERS, SequenceSpec, _fmt, _write_text, run_one
+from ..datasets.camera_effects import EFFECT_PRESETS, CameraEffects, apply_camera_effects, effects_record
+from .robustness import ATE_BOUND_M, FILTERS, SequenceSpec, _fmt, _write_text, resumable_run
 
 __all__ = ["ORIGINAL", "effect_copy", "run_camera_effects", "camera_effects_summary", "camera_effects_markdown"]
 
@@ -34,13 +32,11 @@ def effect_copy(root: Path, effects: CameraEffects, folder: Path) -> Path:
     """The copy of sequence ``root`` with ``effects`` in ``folder`` (made once; a copy made from another source or
     with other effects is an error, never overwritten)."""
     if folder.exists():
-        meta = folder / "camera_effects.json"
-        want = {"source": str(root), **json.loads(json.dumps(asdict(effects)))}
         try:
-            have = json.loads(meta.read_text())
+            have = json.loads((folder / "camera_effects.json").read_text())
         except (OSError, ValueError):
             have = None
-        if have != want:
+        if have != effects_record(root, effects):
             raise FileExistsError(f"{folder} exists and is not the copy of {root} with {effects}; remove it or choose "
                                   "another output folder")
         return folder
@@ -83,18 +79,7 @@ def run_camera_effects(sequences: list[SequenceSpec], outdir: str | Path, effect
             for label in labels:
                 filt, det = known[label]
                 run_dir = outdir / spec.name / effect / label.replace(" ", "_").replace("+", "_")
-                key = {"sequence": str(root), "filters": filt, "detector": det, "max_frames": max_frames,
-                       "loop_closing": loop_closing, "config": fingerprint}
-                row = None
-                if resume and (run_dir / "row.json").is_file():
-                    try:
-                        saved = json.loads((run_dir / "row.json").read_text())
-                        row = saved["row"] if saved.get("key") == key else None
-                    except (OSError, ValueError, KeyError):
-                        row = None
-                if row is None:
-                    row = run_one(TumSequence(root), run_dir, config, filt, det, loop_closing, max_frames)
-                    _write_text(run_dir / "row.json", json.dumps({"key": key, "row": row}, indent=1))
+                row = resumable_run(root, run_dir, config, fingerprint, filt, det, loop_closing, max_frames, resume)
                 rows.append({"sequence": spec.name, "effect": effect, "filter": label, **row})
                 if on_run is not None:
                     on_run(rows[-1])

@@ -44,7 +44,7 @@ from ..runs import run_sequence
 from ..runs.layout import atomic_write
 from .scoring import KeypointScorer
 
-__all__ = ["SequenceSpec", "FILTERS", "REFERENCE", "run_one", "run_robustness", "summarise", "robustness_markdown",
+__all__ = ["SequenceSpec", "FILTERS", "REFERENCE", "run_one", "resumable_run", "run_robustness", "summarise", "robustness_markdown",
            "robustness_plot", "TARGETS", "TARGET_COVERAGE", "ATE_BOUND_M", "REFERENCE_LOST_SHARE", "by_kind", "scene_kind", "synthetic_specs"]
 
 #: Filter label -> (``--filters``, ``--detector``); ``full+onnx`` is added when a model is given.
@@ -209,6 +209,26 @@ def run_one(seq: TumSequence, run_dir: str | Path, config: Config, filters: str,
     }
 
 
+def resumable_run(root: Path, run_dir: Path, config: Config, fingerprint: str, filters: str, detector: str,
+                  loop_closing: bool, max_frames: int | None, resume: bool, progress: bool = False) -> dict:
+    """:func:`run_one` on the sequence at ``root``, or its row from ``run_dir/row.json`` when ``resume`` and that
+    run was finished with the same sequence, filters, detector, frames, loop closing and configuration
+    (``fingerprint``); a fresh row is saved there."""
+    key = {"sequence": str(root), "filters": filters, "detector": detector, "max_frames": max_frames,
+           "loop_closing": loop_closing, "config": fingerprint}
+    row_path = run_dir / "row.json"
+    if resume and row_path.is_file():
+        try:
+            saved = json.loads(row_path.read_text())
+            if saved.get("key") == key:
+                return saved["row"]
+        except (OSError, ValueError, KeyError):
+            pass
+    row = run_one(TumSequence(root), run_dir, config, filters, detector, loop_closing, max_frames, progress)
+    _write_text(row_path, json.dumps({"key": key, "row": row}, indent=1))
+    return row
+
+
 def _filters(onnx_model: str | Path | None, only=None) -> dict[str, tuple[str, str]]:
     out = dict(FILTERS)
     if onnx_model is not None:
@@ -265,19 +285,7 @@ def run_robustness(sequences, outdir: str | Path, config: Config | None = None, 
             jobs.append((REFERENCE, spec.reference, "none", "none"))
         for label, root, filt, det in jobs:
             run_dir = outdir / spec.name / label.replace(" ", "_").replace("+", "_")
-            key = {"sequence": str(root), "filters": filt, "detector": det, "max_frames": max_frames,
-                   "loop_closing": loop_closing, "config": fingerprint}
-            row_path = run_dir / "row.json"
-            row = None
-            if resume and row_path.is_file():
-                try:
-                    saved = json.loads(row_path.read_text())
-                    row = saved["row"] if saved.get("key") == key else None
-                except (OSError, ValueError, KeyError):
-                    row = None
-            if row is None:
-                row = run_one(TumSequence(root), run_dir, config, filt, det, loop_closing, max_frames, progress)
-                _write_text(row_path, json.dumps({"key": key, "row": row}, indent=1))
+            row = resumable_run(root, run_dir, config, fingerprint, filt, det, loop_closing, max_frames, resume, progress)
             rows.append({"sequence": spec.name, "filter": label, "detector": det, "room": room, "camera": camera,
                          "coverage_mean": cov_mean, "coverage_max": cov_max, **row})
             if on_run is not None:
