@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -29,3 +31,26 @@ def shared_file(rel: str) -> Path:
     if not p.is_file():
         pytest.skip(f"real data file {p} not found")
     return p
+
+
+def _free_gib(path: Path) -> float:
+    while not path.exists():
+        path = path.parent
+    return shutil.disk_usage(path).free / 2**30
+
+
+# The suite renders ~2.5 GB of synthetic sequences into DYNSLAM_CACHE and writes runs under the
+# temporary folder; a disk that fills up mid-run fails tests with errors unrelated to the code.
+NEEDED_GIB = 4.0
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    lines = []
+    for name, path in (("DYNSLAM_CACHE", Path(os.environ["DYNSLAM_CACHE"])),
+                       ("temporary folder", Path(tempfile.gettempdir()))):
+        free = _free_gib(path)
+        line = f"disk: {name} {path}: {free:.1f} GiB free"
+        if free < NEEDED_GIB:
+            line += f" -- WARNING: the suite needs about {NEEDED_GIB:.0f} GiB; tests may fail with 'No space left on device'"
+        lines.append(line)
+    return lines
