@@ -8,6 +8,9 @@
                            ``schema_version`` and ``complete``
       trajectory.txt       TUM format (timestamp tx ty tz qx qy qz qw), every tracked frame
       timing.csv           one row per frame: frame, timestamp, then one column per stage (ms)
+      screen_timing.csv    with a screener: one row per frame, the screen stage's parts (ms): each
+                           screening stage, ``total``, then the shared products a stage computed
+                           first (``lk``, ``reference_pose``, ...: parts of that stage's time)
       keyframes.npz        ids (K,), frame_index (K,), timestamps (K,), poses (K, 4, 4) T_w_c,
                            loop_edges (L, 2) keyframe ids
       map_points.npz       xyz (M, 3) world metres, rgb (M, 3) uint8, n_obs (M,)
@@ -68,6 +71,7 @@ FILES = {
     "summary": "summary.json",
     "trajectory": "trajectory.txt",
     "timing": "timing.csv",
+    "screen_timing": "screen_timing.csv",
     "keyframes": "keyframes.npz",
     "map_points": "map_points.npz",
     "dynamic_points": "dynamic_points.npz",
@@ -147,6 +151,17 @@ class RunWriter:
         for r in rows:
             lines.append(f"{r['frame']},{r['timestamp']:.6f}," + ",".join(f"{r.get(s, float('nan')):.3f}" for s in STAGES))
         self.write(FILES["timing"], lambda tmp: tmp.write_text("\n".join(lines) + "\n"))
+
+    def screen_timing(self, rows: list[dict], first: tuple[str, ...] = ()) -> None:
+        """``rows``: one dict per screened frame with ``frame`` and the screener's ms by name; the
+        columns are ``first`` (the screening stages in order, then ``total``) and then every other
+        name in the order it first appears (missing = nan)."""
+        seen = dict.fromkeys(k for r in rows for k in r if k != "frame")
+        cols = [c for c in first if c in seen] + [c for c in seen if c not in first]
+        lines = ["frame," + ",".join(cols)]
+        for r in rows:
+            lines.append(f"{r['frame']}," + ",".join(f"{r.get(c, float('nan')):.3f}" for c in cols))
+        self.write(FILES["screen_timing"], lambda tmp: tmp.write_text("\n".join(lines) + "\n"))
 
     def keyframes(self, ids, frame_index, timestamps, poses, loop_edges) -> None:
         self.write(FILES["keyframes"], _npz({

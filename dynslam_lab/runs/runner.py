@@ -123,6 +123,8 @@ class RunRecorder:
     Attributes
     ----------
     rows : per-frame timing rows (``frame``, ``timestamp``, stage ms).
+    screen_rows : per screened frame, the screener's own timings (``frame``, then ms by stage and
+        shared product; ``screen_timing.csv``).
     dynamic_xyz, dynamic_frame : world points of keypoints judged dynamic, and their frames.
     region_masks : keyframe frame index -> ``(H, W)`` bool pixels judged dynamic (the dense map
         leaves them out).
@@ -136,6 +138,7 @@ class RunRecorder:
     writer: RunWriter
     save_labels: bool = False
     rows: list[dict] = field(default_factory=list)
+    screen_rows: list[dict] = field(default_factory=list)
     dynamic_xyz: list[np.ndarray] = field(default_factory=list)
     dynamic_frame: list[np.ndarray] = field(default_factory=list)
     region_masks: dict[int, np.ndarray] = field(default_factory=dict)
@@ -172,6 +175,9 @@ class RunRecorder:
         """A processed frame: its timings, dynamic points, thumbnail, region mask, labels."""
         self.n_ok += 1
         self.rows.append({"frame": index, "timestamp": res.timestamp, **res.timings_ms})
+        screen_ms = getattr(res.table, "timings_ms", None)
+        if screen_ms:
+            self.screen_rows.append({"frame": index, **screen_ms})
         if res.dynamic_xyz is not None and len(res.dynamic_xyz):
             self.dynamic_xyz.append(res.dynamic_xyz)
             self.dynamic_frame.append(np.full(len(res.dynamic_xyz), index, np.int64))
@@ -201,6 +207,8 @@ class RunRecorder:
                 w.remove(rel)
         w.trajectory(system.trajectory(wait))
         w.timing(self.rows)
+        if self.screen_rows:
+            w.screen_timing(self.screen_rows, first=tuple(getattr(system.screener, "stages", ())) + ("total",))
         w.keyframes(**system.keyframe_arrays(wait))
         w.map_points(**system.map_point_arrays(wait))
         xyz = np.concatenate(self.dynamic_xyz) if self.dynamic_xyz else np.zeros((0, 3))

@@ -132,6 +132,28 @@ def test_run_sequence_with_screener_saves_labels_and_dynamic_points(seqdir, tmp_
     assert np.mean(uv[:, 0] >= 640 / 3 - 2) > 0.95
 
 
+def test_geometry_run_writes_where_the_screen_time_goes(seqdir, tmp_path):
+    """``screen_timing.csv``: a row per screened frame (the corrupt frame 12 has none), the screening
+    stages in pipeline order and ``total`` first; the stages' parts add up to no more than the
+    screener's total, which is part of the system's ``screen`` stage in ``timing.csv``."""
+    import pandas as pd
+
+    seq = TumSequence(seqdir, camera="default", max_frames=16)
+    system = build_pipeline(Config(), seq.camera, filters="geometry", loop_closing=False)
+    out = tmp_path / "geo"
+    summary = run_sequence(seq, out, system, progress=False)
+    assert "screen_timing.csv" in json.loads((out / "summary.json").read_text())["files"]
+    st = pd.read_csv(out / "screen_timing.csv")
+    timing = pd.read_csv(out / "timing.csv")
+    stages = [s for s in system.screener.stages if s in st.columns]
+    assert list(st.columns[: len(stages) + 2]) == ["frame", *stages, "total"] and len(stages) >= 3
+    assert "reference_pose" in st.columns and "lk" in st.columns  # shared products after them
+    assert st["frame"].tolist() == [i for i in range(16) if i != 12]
+    assert np.all(st[stages].fillna(0).sum(axis=1) <= st["total"] + 1e-3)
+    screen = timing.set_index("frame").loc[st["frame"], "screen"].to_numpy()
+    assert np.all(st["total"].to_numpy() <= screen + 1e-3) and np.all(st["total"] > 0)
+
+
 def test_flushes_during_a_run_do_not_wait_for_the_loop_closer(seqdir, tmp_path):
     """The files written every ``flush_every`` frames show the map as it stands: only the final write
     waits for (and applies) the loop closer's pending corrections, so no frame waits for them."""
