@@ -15,11 +15,17 @@ that a run on the copy can be compared with a run on the original (``benchmarks/
   a direction drifting from frame to frame);
 * **vignetting and response**: ``255 (I / 255)^gamma`` times ``1 - vignette r^2`` (``r`` = 1 at the corners);
 * **noise**: extra Gaussian colour noise of ``noise`` grey levels;
+* **resolution**: every image resized by ``scale`` (0.5: 640x480 -> 320x240, a smaller sensor or a renderer set
+  to it; 1.5: 960x720) after the effects above, the colour image with area averaging (down) or bilinear
+  interpolation (up), depth and instance masks with the nearest pixel (a depth never averaged across an edge), and
+  ``camera.json`` written with the intrinsics scaled to match (:meth:`~dynslam_lab.camera.PinholeCamera.scaled`;
+  a sequence without one gets the camera its folder name selects, scaled; distortion coefficients act on
+  normalised coordinates and stay);
 * **frame rate**: only every ``every``-th colour frame (``rgb.txt`` thinned, ``depth.txt`` to the depth frames
   nearest the kept colour frames, ``associations.txt`` to their rows; ``moving.txt``, when there is one, then lists
   for each kept frame the instances that moved since the last kept frame).
 
-Depth, ground truth, masks and every other file are carried over unchanged (hard links where the file system
+Depth, ground truth, masks and every other file are carried over unchanged (but for ``scale``) (hard links where the file system
 allows). The gain and blur of each frame go to ``camera_effects.csv``, the effects to ``camera_effects.json``.
 """
 
@@ -36,6 +42,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..camera import camera_for_sequence, save_camera_json
 from .tum import DatasetError, read_file_list, read_moving
 
 __all__ = ["CameraEffects", "apply_camera_effects", "effects_record", "EFFECT_PRESETS"]
@@ -54,6 +61,7 @@ class CameraEffects:
     gamma: float = 1.0  # camera response 255 (I / 255)^gamma
     noise: float = 0.0  # extra Gaussian colour noise, grey levels
     every: int = 1  # keep every n-th frame
+    scale: float = 1.0  # image size factor (0.5: half the width and height), intrinsics to match
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -69,6 +77,8 @@ class CameraEffects:
             raise ValueError(f"CameraEffects.vignette must be in [0, 1), got {self.vignette}")
         if not self.gamma > 0:
             raise ValueError(f"CameraEffects.gamma must be > 0, got {self.gamma}")
+        if not 0.1 <= self.scale <= 4.0:
+            raise ValueError(f"CameraEffects.scale must be in [0.1, 4], got {self.scale}")
         if int(self.every) != self.every or self.every < 1:
             raise ValueError(f"CameraEffects.every must be an integer >= 1, got {self.every}")
 
@@ -86,6 +96,8 @@ EFFECT_PRESETS: dict[str, CameraEffects] = {
     "noise": CameraEffects(noise=6.0),
     "rate15": CameraEffects(every=2),
     "rate10": CameraEffects(every=3),
+    "half": CameraEffects(scale=0.5),
+    "large": CameraEffects(scale=1.5),
 }
 
 
@@ -97,6 +109,29 @@ def _blur_kernel(length: float, angle: float) -> np.ndarray:
     for s in np.linspace(-length / 2, length / 2, max(2, int(4 * length) + 1)):
         k[int(round(half + s * math.sin(angle))), int(round(half + s * math.cos(angle)))] += 1.0
     return k / k.sum()
+
+
+def _resized(img: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndarray:
+    """``img`` at ``size`` (width, height): the nearest pixel (depth, labels), else area averaging down and
+    bilinear interpolation up."""
+    if (img.shape[1], img.shape[0]) == size:
+        return img
+    down = size[0] < img.shape[1]
+    interp = cv2.INTER_NEAREST if nearest else (cv2.INTER_AREA if down else cv2.INTER_LINEAR)
+    return cv2.resize(img, size, interpolation=interp)
+
+
+def _resize_files(src: Path, dst: Path, rels, size: tuple[int, int], what: str) -> None:
+    """Each image ``rels`` (relative paths) of ``src`` written to ``dst`` at ``size`` with the nearest pixel."""
+    for rel in rels:
+        img = cv2.imread(str(src / rel), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise DatasetError(f"{src / rel}: cannot read the {what} image (missing or corrupt)")
+        out = dst / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.unlink(missing_ok=True)  # a link to the source's file is replaced, never written through
+        if not cv2.imwrite(str(out), _resized(img, size, nearest=True)):
+            raise OSError(f"{out}: cannot write the {what} image")
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
@@ -181,8 +216,18 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
     try:
-        colour = effects.changes_colour
+        size = None
+        if effects.scale != 1.0:  # the new image size and camera, from the source's camera
+            try:
+                camera = camera_for_sequence(src).scaled(effects.scale)
+            except ValueError as exc:
+                raise DatasetError(f"{src}: cannot scale the sequence's camera ({exc})") from exc
+            size = (camera.width, camera.height)
+        colour = effects.changes_colour or size is not None
         skip = {"rgb.txt", "depth.txt", "associations.txt", "moving.txt"} | ({"rgb"} if colour else set())
+        if size is not None:  # written resized below (never hard links: writing one would change the source)
+            _, depth_rows = read_file_list(src / "depth.txt")
+            skip |= {"camera.json", "masks"} | {Path(row[0]).parts[0] for row in depth_rows if len(Path(row[0]).parts) > 1}
         _copy_tree(src, tmp, skip)
         every = int(effects.every)
         kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", lambda n, ts: n % every == 0)
@@ -230,11 +275,19 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
                     im = cv2.filter2D(im, -1, _blur_kernel(length, angle), borderType=cv2.BORDER_REFLECT)
                 if effects.noise:
                     im += rs.normal(0.0, effects.noise, im.shape).astype(np.float32)
+                if size is not None:
+                    im = _resized(im, size, nearest=False)
                 out = tmp / rel
                 out.parent.mkdir(parents=True, exist_ok=True)
+                out.unlink(missing_ok=True)  # a link to the source's file is replaced, never written through
                 if not cv2.imwrite(str(out), np.clip(np.rint(im), 0, 255).astype(img.dtype)):
                     raise OSError(f"{out}: cannot write the colour image")
                 stats.append((rel, math.exp(log_gain), length))
+        if size is not None:
+            save_camera_json(camera, tmp / "camera.json")
+            _resize_files(src, tmp, [row[0] for row in depth_rows], size, "depth")
+            if (src / "masks").is_dir():
+                _resize_files(src, tmp, [p.relative_to(src) for p in sorted((src / "masks").glob("*.png"))], size, "mask")
         with open(tmp / "camera_effects.csv", "w") as f:
             f.write("rgb,gain,blur_px\n")
             f.writelines(f"{rel},{g:.6f},{b:.3f}\n" for rel, g, b in stats)

@@ -171,3 +171,39 @@ def test_a_lower_frame_rate_keeps_the_depth_frames_that_pair_with_the_kept_colou
     seq = TumSequence(out)
     assert len(seq) == 4
     assert len(TumSequence(out, associations=False)) == 4  # rgb.txt and depth.txt alone associate too
+
+
+def test_scale_resizes_every_image_and_the_camera_and_leaves_the_source_alone(tmp_path):
+    """``scale = 0.5``: colour by area averaging, depth and masks by the nearest pixel (every second pixel of each
+    row and column, as OpenCV picks them), the intrinsics of the half-size image in ``camera.json``; the source's
+    files are byte for byte what they were (the copy links unchanged files, and must not write through them)."""
+    from dynslam_lab.camera import PinholeCamera, save_camera_json
+
+    src = _sequence(tmp_path / "src")
+    save_camera_json(PinholeCamera(fx=50.0, fy=52.0, cx=31.5, cy=23.5, width=64, height=48, name="tiny"), src / "camera.json")
+    (src / "masks").mkdir()
+    rels = [l.split()[1] for l in (src / "rgb.txt").read_text().splitlines() if l and not l.startswith("#")]
+    yy, xx = np.mgrid[:48, :64]
+    for rel in rels:
+        cv2.imwrite(str(src / "masks" / rel.split("/")[-1]), ((xx // 9 + yy // 7) % 3).astype(np.uint16))
+    before = {p: p.read_bytes() for p in src.rglob("*") if p.is_file()}
+    dst = apply_camera_effects(src, tmp_path / "half", CameraEffects(scale=0.5))
+    assert {p: p.read_bytes() for p in src.rglob("*") if p.is_file()} == before
+    seq = TumSequence(dst)
+    cam = seq.camera
+    assert (cam.width, cam.height) == (32, 24) and cam.fx == 25.0 and cam.fy == 26.0
+    assert cam.cx == pytest.approx(15.5) and cam.cy == pytest.approx(11.5)
+    for rel in rels:
+        name = rel.split("/")[-1]
+        rgb = cv2.imread(str(src / rel), cv2.IMREAD_UNCHANGED)
+        # area averaging by 2 is the mean of each 2x2 block (rounded to the nearest grey level)
+        block = rgb.reshape(24, 2, 32, 2, 3).astype(np.float64).mean(axis=(1, 3))
+        assert np.abs(cv2.imread(str(dst / rel), cv2.IMREAD_UNCHANGED) - block).max() <= 0.5 + 1e-9
+        for sub in ("depth", "masks"):
+            a = cv2.imread(str(src / sub / name), cv2.IMREAD_UNCHANGED)
+            b = cv2.imread(str(dst / sub / name), cv2.IMREAD_UNCHANGED)
+            assert b.dtype == np.uint16 and np.array_equal(b, a[::2, ::2])
+    f = seq[0]
+    assert f.rgb.shape == (24, 32, 3) and f.depth.shape == (24, 32) and np.allclose(f.depth, 2.0)
+    with pytest.raises(ValueError, match="scale"):
+        CameraEffects(scale=0.0)
