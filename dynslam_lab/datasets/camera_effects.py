@@ -25,8 +25,9 @@ that a run on the copy can be compared with a run on the original (``benchmarks/
   nearest the kept colour frames, ``associations.txt`` to their rows; ``moving.txt``, when there is one, then lists
   for each kept frame the instances that moved since the last kept frame).
 
-Depth, ground truth, masks and every other file are carried over unchanged (but for ``scale``) (hard links where the file system
-allows). The gain and blur of each frame go to ``camera_effects.csv``, the effects to ``camera_effects.json``.
+Depth, ground truth, masks and every other file are carried over unchanged (hard links where the file system
+allows), except depth, masks and ``camera.json`` under ``scale``. The gain and blur of each frame go to
+``camera_effects.csv``, the effects to ``camera_effects.json``.
 """
 
 from __future__ import annotations
