@@ -13,7 +13,7 @@ the detection stage and the stage lists of the named filters. Change a value wit
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from ..detection.config import MotionPriorConfig
 from .depth_ransac import DepthRansacConfig
@@ -84,12 +84,40 @@ class ScreeningConfig:
     geometry_mask_margin_px: int = 10
     # With masks from the detector, also run depth-RANSAC inside them (else only mask-less boxes). Ours, False.
     depth_ransac_with_masks: bool = False
+    # The image width (px) the extents above are set for: on images of another width W, the parameters that are
+    # distances in the image (how far a mover gets in a frame, the grid's cell, the margins), not measurement noise,
+    # scale by W / reference_width (for_width; docs/robustness.md "Another resolution"). Ours, 640 (TUM RGB-D, Bonn,
+    # our renderer: unchanged there); 0 = never scale.
+    reference_width: int = 640
 
     def __post_init__(self) -> None:
         if self.geometric_vote not in ("any", "both", "auto"):
             raise ValueError(f"ScreeningConfig.geometric_vote must be 'any', 'both' or 'auto', got {self.geometric_vote!r}")
         if self.geometry_mask_margin_px < 0:
             raise ValueError(f"ScreeningConfig.geometry_mask_margin_px must be >= 0, got {self.geometry_mask_margin_px}")
+        if self.reference_width < 0:
+            raise ValueError(f"ScreeningConfig.reference_width must be >= 0 px (0 = never scale), got {self.reference_width}")
         unknown = [s for s in self.full_stages if s not in STAGES]
         if unknown:
             raise ValueError(f"ScreeningConfig.full_stages: unknown stages {unknown}; known: {list(STAGES)}")
+
+    def for_width(self, width: int) -> "ScreeningConfig":
+        """This configuration for images ``width`` px wide. With ``s = width / reference_width``, the parameters that
+        are distances in the image scale by ``s``: the reduced grid's ``multiframe.factor`` (a cell covers the same
+        angle: 160x120 cells at 640x480, 320x240 and 960x720 alike) and its ``min_filter_px``, the reference pose's
+        ``search_radius_px`` and ``gate_px`` (a mover walking 1 m/s at 2 m moves ~9 px a frame at 640 px and ~4 px at
+        320: beyond the 6 px gate at 640, inside it at 320, where it pulls the pose), the epipolar ``border_px`` and
+        ``geometry_mask_margin_px``. Thresholds on residuals stay in pixels: a keypoint's position is as noisy in
+        pixels at every size. The same object at the reference width, or with ``reference_width`` 0."""
+        if not self.reference_width or int(width) == self.reference_width:
+            return self
+        s = int(width) / self.reference_width
+        mf, ref, ep = self.multiframe, self.reference, self.epipolar
+        return replace(
+            self,
+            multiframe=replace(mf, factor=max(1, round(mf.factor * s)), min_filter_px=max(0, round(mf.min_filter_px * s))),
+            reference=replace(ref, search_radius_px=ref.search_radius_px * s, gate_px=ref.gate_px * s),
+            epipolar=replace(ep, border_px=ep.border_px * s),
+            geometry_mask_margin_px=max(0, round(self.geometry_mask_margin_px * s)),
+        )
+

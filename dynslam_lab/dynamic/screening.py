@@ -127,7 +127,8 @@ class Screener:
     Parameters
     ----------
     stages : stage names (see :data:`dynslam_lab.dynamic.config.STAGES`).
-    config : all parameters (``Screener.config`` is what it runs with).
+    config : all parameters (``Screener.config`` is what it runs with on images of ``config.reference_width``;
+        :meth:`config_for` on others).
     name : label for tables and summaries (the filter name).
     """
 
@@ -150,6 +151,16 @@ class Screener:
         #: ids of map points on surfaces the last frame found moving against the room (reference pose, step 3b,
         #: a surface holding most matches): their stored positions are stale, the SLAM system removes them
         self.moved_map_ids = np.zeros(0, np.int64)
+        self._width_config: tuple[int, ScreeningConfig, ScreeningConfig] | None = None  # (width, config, for_width)
+
+    def config_for(self, width: int) -> ScreeningConfig:
+        """The configuration the stages run with on images ``width`` px wide (:meth:`ScreeningConfig.for_width`:
+        the pixel extents scaled to the image; ``config`` itself at its reference width). Follows ``config`` when it is
+        replaced (a notebook's slider)."""
+        cached = self._width_config
+        if cached is None or cached[0] != int(width) or cached[1] is not self.config:
+            cached = self._width_config = (int(width), self.config, self.config.for_width(int(width)))
+        return cached[2]
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
@@ -201,7 +212,7 @@ class Screener:
             correction = mem.history.update_poses(context.poses)
             if correction is not None and np.linalg.norm(correction[:3, 3]) > self.config.multiframe.far_reset_m:
                 mem.far.clear()  # a loop closure moved the world: the far frames' poses are stale
-        w = FrameWork(frame, uv, detections, context, self.config, mem)
+        w = FrameWork(frame, uv, detections, context, self.config_for(frame.gray.shape[1]), mem)
         if "epipolar" in self.stages or "multiview" in self.stages:
             w.start_pairs()  # LK with the previous frame beside the stages before them
         for name in self.stages:
@@ -259,7 +270,7 @@ class Screener:
                 self.moved_map_ids = np.union1d(self.moved_map_ids, released)
         region = w.grid_region
         if region is None and w.dynamic.any() and "multiframe" in self.stages:
-            region = splat(w.uv, w.dynamic, self.config.multiframe.factor, w.small_depth.shape)
+            region = splat(w.uv, w.dynamic, w.config.multiframe.factor, w.small_depth.shape)
         T_w_c = None
         if context is None and self.uses_context:  # no SLAM system: the screener chains its own rough poses
             if ref is not None and ref.T_c_w is not None:
