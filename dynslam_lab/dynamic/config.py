@@ -108,7 +108,8 @@ class ScreeningConfig:
         ``search_radius_px`` and ``gate_px`` (a mover walking 1 m/s at 2 m moves ~9 px a frame at 640 px and ~4 px at
         320: beyond the 6 px gate at 640, inside it at 320, where it pulls the pose), the epipolar ``border_px`` and
         ``geometry_mask_margin_px``. Thresholds on residuals stay in pixels: a keypoint's position is as noisy in
-        pixels at every size. The same object at the reference width, or with ``reference_width`` 0."""
+        pixels at every size. The result's ``reference_width`` is ``width`` (what ``summary.json`` records: run again
+        from it, nothing is scaled twice). The same object at the reference width, or with ``reference_width`` 0."""
         if not self.reference_width or int(width) == self.reference_width:
             return self
         s = int(width) / self.reference_width
@@ -119,5 +120,6 @@ class ScreeningConfig:
             reference=replace(ref, search_radius_px=ref.search_radius_px * s, gate_px=ref.gate_px * s),
             epipolar=replace(ep, border_px=ep.border_px * s),
             geometry_mask_margin_px=max(0, round(self.geometry_mask_margin_px * s)),
+            reference_width=int(width),  # the values are now those of this width: scaling again changes nothing
         )
 

@@ -192,8 +192,9 @@ class System:
         changes = {}
         if self.detector is not None:
             changes["detection"] = self.detector.config
-        if self.screener is not None:
-            changes["screening"] = self.screener.config
+        if self.screener is not None:  # at the camera's image width (ScreeningConfig.for_width)
+            config_for = getattr(self.screener, "config_for", None)
+            changes["screening"] = config_for(self.camera.width) if config_for is not None else self.screener.config
         if self.loop_closer is not None:
             changes["loop_closing"] = self.loop_closer.config
         return replace(self.config, **changes)

@@ -14,7 +14,7 @@ from dynslam_lab.dynamic.screening import build_screener
 
 SCALED = {
     ("multiframe", "factor"), ("multiframe", "min_filter_px"), ("reference", "search_radius_px"),
-    ("reference", "gate_px"), ("epipolar", "border_px"), (None, "geometry_mask_margin_px"),
+    ("reference", "gate_px"), ("epipolar", "border_px"), (None, "geometry_mask_margin_px"), (None, "reference_width"),
 }
 
 
@@ -42,6 +42,9 @@ def test_for_width_scales_the_extents_and_nothing_else():
         assert scaled[("reference", "search_radius_px")] == pytest.approx(8.0 * s)
         assert scaled[("epipolar", "border_px")] == pytest.approx(20.0 * s)
         assert scaled[(None, "geometry_mask_margin_px")] == round(10 * s)
+        assert scaled[(None, "reference_width")] == width  # the values are those of this width now
+        once = cfg.for_width(width)
+        assert once.for_width(width) is once  # scaling again changes nothing
     assert cfg.for_width(100).multiframe.factor == 1  # never below one pixel a cell
     with pytest.raises(ValueError, match="reference_width"):
         ScreeningConfig(reference_width=-1)
@@ -76,5 +79,9 @@ def test_geometry_keeps_the_pose_on_half_size_images(tmp_path):
         seq = TumSequence(half)
         assert seq.camera.width == 320
         system = build_pipeline(cfg, seq.camera, filters="geometry", loop_closing=False)
-        ate[width] = run_sequence(seq, tmp_path / f"run_{width}", system, progress=False)["ate"]["rmse"]
+        summary = run_sequence(seq, tmp_path / f"run_{width}", system, progress=False)
+        ate[width] = summary["ate"]["rmse"]
+        recorded = summary["config"]["screening"]  # what the stages ran with, at this image's width
+        assert recorded["multiframe"]["factor"] == (2 if width else 4)
+        assert recorded["reference"]["gate_px"] == (3.0 if width else 6.0)
     assert ate[640] < 0.05 and ate[640] < 0.4 * ate[0], ate
