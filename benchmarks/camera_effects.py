@@ -1,6 +1,6 @@
 """Camera effects benchmark: the filters on sequences as another camera would record them (auto-exposure, blur,
-vignetting and another response, more noise, 15 and 10 frames a second, half and 1.5 times the resolution), against
-the same filters on the unchanged sequences (docs/robustness.md, "Camera effects").
+vignetting and another response, more noise, 15 and 10 frames a second, half and 1.5 times the resolution, a noisier
+or misregistered depth), against the same filters on the unchanged sequences (docs/robustness.md, "Camera effects").
 
 Usage::
 

@@ -21,12 +21,15 @@ that a run on the copy can be compared with a run on the original (``benchmarks/
   ``camera.json`` written with the intrinsics scaled to match (:meth:`~dynslam_lab.camera.PinholeCamera.scaled`;
   a sequence without one gets the camera its folder name selects, scaled; distortion coefficients act on
   normalised coordinates and stay);
+* **depth**: extra axial noise of ``depth_noise z^2`` m (Gaussian; 0.005: 2 cm at 2 m, a stereo camera's depth next to
+  the Kinect's ~0.5 cm there) and a depth image ``depth_shift_px`` px off the colour image to the right (a registration
+  error: depth edges beside colour edges); pixels without a reading keep none;
 * **frame rate**: only every ``every``-th colour frame (``rgb.txt`` thinned, ``depth.txt`` to the depth frames
   nearest the kept colour frames, ``associations.txt`` to their rows; ``moving.txt``, when there is one, then lists
   for each kept frame the instances that moved since the last kept frame).
 
 Depth, ground truth, masks and every other file are carried over unchanged (hard links where the file system
-allows), except depth, masks and ``camera.json`` under ``scale``. The gain and blur of each frame go to
+allows), except depth (under the depth effects and ``scale``), masks and ``camera.json`` (under ``scale``). The gain and blur of each frame go to
 ``camera_effects.csv``, the effects to ``camera_effects.json``.
 """
 
@@ -63,6 +66,8 @@ class CameraEffects:
     noise: float = 0.0  # extra Gaussian colour noise, grey levels
     every: int = 1  # keep every n-th frame
     scale: float = 1.0  # image size factor (0.5: half the width and height), intrinsics to match
+    depth_noise: float = 0.0  # extra depth noise std per squared metre of depth (m / m^2)
+    depth_shift_px: float = 0.0  # the depth image this many px right of the colour image (registration error)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -80,8 +85,15 @@ class CameraEffects:
             raise ValueError(f"CameraEffects.gamma must be > 0, got {self.gamma}")
         if not 0.1 <= self.scale <= 4.0:
             raise ValueError(f"CameraEffects.scale must be in [0.1, 4], got {self.scale}")
+        if not self.depth_noise >= 0 or not math.isfinite(self.depth_shift_px):
+            raise ValueError(f"CameraEffects: depth_noise must be >= 0 (m/m^2) and depth_shift_px finite (px), got "
+                             f"{self.depth_noise}, {self.depth_shift_px}")
         if int(self.every) != self.every or self.every < 1:
             raise ValueError(f"CameraEffects.every must be an integer >= 1, got {self.every}")
+
+    @property
+    def changes_depth(self) -> bool:
+        return bool(self.depth_noise or self.depth_shift_px or self.scale != 1.0)
 
     @property
     def changes_colour(self) -> bool:
@@ -99,6 +111,8 @@ EFFECT_PRESETS: dict[str, CameraEffects] = {
     "rate10": CameraEffects(every=3),
     "half": CameraEffects(scale=0.5),
     "large": CameraEffects(scale=1.5),
+    "depth_noisy": CameraEffects(depth_noise=0.005),
+    "depth_shift": CameraEffects(depth_shift_px=2.0),
 }
 
 
@@ -122,8 +136,8 @@ def _resized(img: np.ndarray, size: tuple[int, int], nearest: bool) -> np.ndarra
     return cv2.resize(img, size, interpolation=interp)
 
 
-def _resize_files(src: Path, dst: Path, rels, size: tuple[int, int], what: str) -> None:
-    """Each image ``rels`` (relative paths) of ``src`` written to ``dst`` at ``size`` with the nearest pixel."""
+def _rewrite_images(src: Path, dst: Path, rels, what: str, change) -> None:
+    """Each image ``rels`` (relative paths) of ``src`` written to ``dst`` as ``change(image)`` gives it."""
     for rel in rels:
         img = cv2.imread(str(src / rel), cv2.IMREAD_UNCHANGED)
         if img is None:
@@ -131,8 +145,30 @@ def _resize_files(src: Path, dst: Path, rels, size: tuple[int, int], what: str) 
         out = dst / rel
         out.parent.mkdir(parents=True, exist_ok=True)
         out.unlink(missing_ok=True)  # a link to the source's file is replaced, never written through
-        if not cv2.imwrite(str(out), _resized(img, size, nearest=True)):
+        if not cv2.imwrite(str(out), change(img)):
             raise OSError(f"{out}: cannot write the {what} image")
+
+
+def _depth_changer(effects: CameraEffects, size: tuple[int, int] | None, depth_scale: float):
+    """``change(raw)`` for :func:`_rewrite_images`: a 16-bit depth image resized (nearest pixel), shifted by
+    ``depth_shift_px`` (nearest pixel; no reading where it uncovers the image) and given ``depth_noise``; zero
+    (no reading) stays zero. The noise is drawn from ``seed`` in the order of the depth list."""
+    rs = np.random.default_rng([effects.seed, 1])  # a stream of its own: the colour effects draw the same as without
+
+    def change(raw: np.ndarray) -> np.ndarray:
+        d = _resized(raw, size, nearest=True) if size is not None else raw
+        if effects.depth_shift_px:
+            h, w = d.shape[:2]
+            M = np.float32([[1, 0, effects.depth_shift_px], [0, 1, 0]])
+            d = cv2.warpAffine(d, M, (w, h), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if effects.depth_noise:
+            z = d.astype(np.float64) / depth_scale
+            noisy = z + rs.standard_normal(z.shape) * effects.depth_noise * z * z
+            out = np.clip(np.rint(noisy * depth_scale), 1, np.iinfo(d.dtype).max)
+            d = np.where(d > 0, out, 0).astype(d.dtype)
+        return d
+
+    return change
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
@@ -217,18 +253,22 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
     try:
-        size = None
-        if effects.scale != 1.0:  # the new image size and camera, from the source's camera
+        size, camera = None, None
+        if effects.changes_depth:  # the sequence's camera: its depth scale, and the new image size
             try:
-                camera = camera_for_sequence(src).scaled(effects.scale)
+                camera = camera_for_sequence(src)
             except ValueError as exc:
-                raise DatasetError(f"{src}: cannot scale the sequence's camera ({exc})") from exc
+                raise DatasetError(f"{src}: cannot read the sequence's camera ({exc})") from exc
+        if effects.scale != 1.0:
+            camera = camera.scaled(effects.scale)
             size = (camera.width, camera.height)
         colour = effects.changes_colour or size is not None
         skip = {"rgb.txt", "depth.txt", "associations.txt", "moving.txt"} | ({"rgb"} if colour else set())
-        if size is not None:  # written resized below (never hard links: writing one would change the source)
+        if effects.changes_depth:  # written below (never hard links: writing one would change the source)
             _, depth_rows = read_file_list(src / "depth.txt")
-            skip |= {"camera.json", "masks"} | {Path(row[0]).parts[0] for row in depth_rows if len(Path(row[0]).parts) > 1}
+            skip |= {Path(row[0]).parts[0] for row in depth_rows if len(Path(row[0]).parts) > 1}
+        if size is not None:
+            skip |= {"camera.json", "masks"}
         _copy_tree(src, tmp, skip)
         every = int(effects.every)
         kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", lambda n, ts: n % every == 0)
@@ -284,11 +324,13 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
                 if not cv2.imwrite(str(out), np.clip(np.rint(im), 0, 255).astype(img.dtype)):
                     raise OSError(f"{out}: cannot write the colour image")
                 stats.append((rel, math.exp(log_gain), length))
+        if effects.changes_depth:
+            _rewrite_images(src, tmp, [row[0] for row in depth_rows], "depth", _depth_changer(effects, size, camera.depth_scale))
         if size is not None:
             save_camera_json(camera, tmp / "camera.json")
-            _resize_files(src, tmp, [row[0] for row in depth_rows], size, "depth")
             if (src / "masks").is_dir():
-                _resize_files(src, tmp, [p.relative_to(src) for p in sorted((src / "masks").glob("*.png"))], size, "mask")
+                _rewrite_images(src, tmp, [p.relative_to(src) for p in sorted((src / "masks").glob("*.png"))], "mask",
+                                lambda img: _resized(img, size, nearest=True))
         with open(tmp / "camera_effects.csv", "w") as f:
             f.write("rgb,gain,blur_px\n")
             f.writelines(f"{rel},{g:.6f},{b:.3f}\n" for rel, g, b in stats)
