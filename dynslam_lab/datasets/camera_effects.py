@@ -171,6 +171,53 @@ def _depth_changer(effects: CameraEffects, size: tuple[int, int] | None, depth_s
     return change
 
 
+def _colour_changer(effects: CameraEffects, size: tuple[int, int] | None, applied: list[tuple[float, float]]):
+    """``change(img)`` for :func:`_rewrite_images`: a colour image with the exposure gain, response, vignetting,
+    motion blur and noise of ``effects``, then resized to ``size``. Called on every frame in the order of the colour
+    list (the gain and the blur direction drift from frame to frame, from ``seed``); appends each frame's ``(gain,
+    blur length px)`` to ``applied``."""
+    rs = np.random.default_rng(effects.seed)
+    log_gain, angle = 0.0, float(rs.uniform(0, math.pi))
+    lo, hi = (math.log(v) for v in effects.exposure_range)
+    shade = None
+
+    def change(img: np.ndarray) -> np.ndarray:
+        nonlocal log_gain, angle, shade
+        im = img.astype(np.float32)
+        log_gain += rs.normal(0.0, effects.exposure) if effects.exposure else 0.0
+        if effects.exposure_jump_rate and rs.random() < effects.exposure_jump_rate:
+            log_gain += rs.normal(0.0, effects.exposure_jump)
+        log_gain = min(max(log_gain, lo), hi)
+        length = float(rs.uniform(0.5, 1.0) * effects.motion_blur_px) if effects.motion_blur_px else 0.0
+        angle += float(rs.normal(0.0, 0.3))
+        if effects.gamma != 1.0:
+            im = np.float32(255.0) * (im / np.float32(255.0)) ** np.float32(effects.gamma)
+        if effects.vignette:
+            if shade is None:
+                h, w = im.shape[:2]
+                yy, xx = np.mgrid[:h, :w].astype(np.float32)
+                r2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+                shade = 1.0 - np.float32(effects.vignette) * r2
+                shade = shade[..., None] if im.ndim == 3 else shade
+            im *= shade
+        im *= np.float32(math.exp(log_gain))
+        if length >= 1.0:
+            im = cv2.filter2D(im, -1, _blur_kernel(length, angle), borderType=cv2.BORDER_REFLECT)
+        if effects.noise:
+            im += rs.normal(0.0, effects.noise, im.shape).astype(np.float32)
+        if size is not None:
+            im = _resized(im, size, nearest=False)
+        applied.append((math.exp(log_gain), length))
+        return np.clip(np.rint(im), 0, 255).astype(img.dtype)
+
+    return change
+
+
+def _top_folders(rows) -> set[str]:
+    """The top-level folders of a TUM list's files (``rgb``, ``depth``): copies of them are written, never linked."""
+    return {Path(row[0]).parts[0] for row in rows if len(Path(row[0]).parts) > 1}
+
+
 def _link_or_copy(src: Path, dst: Path) -> None:
     try:
         os.link(src, dst)
@@ -263,10 +310,13 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
             camera = camera.scaled(effects.scale)
             size = (camera.width, camera.height)
         colour = effects.changes_colour or size is not None
-        skip = {"rgb.txt", "depth.txt", "associations.txt", "moving.txt"} | ({"rgb"} if colour else set())
-        if effects.changes_depth:  # written below (never hard links: writing one would change the source)
-            _, depth_rows = read_file_list(src / "depth.txt")
-            skip |= {Path(row[0]).parts[0] for row in depth_rows if len(Path(row[0]).parts) > 1}
+        _, rgb_rows = read_file_list(src / "rgb.txt")
+        depth_stamps, depth_rows = read_file_list(src / "depth.txt")
+        skip = {"rgb.txt", "depth.txt", "associations.txt", "moving.txt"}
+        if colour:  # written below (never hard links: writing one would change the source)
+            skip |= _top_folders(rgb_rows)
+        if effects.changes_depth:
+            skip |= _top_folders(depth_rows)
         if size is not None:
             skip |= {"camera.json", "masks"}
         _copy_tree(src, tmp, skip)
@@ -274,7 +324,6 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
         kept = _thin_list(src / "rgb.txt", tmp / "rgb.txt", lambda n, ts: n % every == 0)
         # the depth frames nearest to the kept colour frames (a real sequence's depth list need not pair with its
         # colour list line by line), and the association file's rows of the kept colour frames
-        depth_stamps, _ = read_file_list(src / "depth.txt")
         near = _nearest(np.sort(depth_stamps), kept)
         _thin_list(src / "depth.txt", tmp / "depth.txt", lambda n, ts: ts in near)
         if (src / "associations.txt").is_file():
@@ -283,47 +332,11 @@ def apply_camera_effects(src: str | Path, dst: str | Path, effects: CameraEffect
         if (src / "moving.txt").is_file():
             _thin_moving(src, tmp / "moving.txt", kept)
         stats = []
-        if colour:
-            _, rows = read_file_list(src / "rgb.txt")
-            rs = np.random.default_rng(effects.seed)
-            log_gain, angle = 0.0, float(rs.uniform(0, math.pi))
-            lo, hi = (math.log(v) for v in effects.exposure_range)
-            shade = None
-            for row in rows:  # every frame, kept or not: the same gains as the full-rate copy
-                rel = row[0]
-                img = cv2.imread(str(src / rel), cv2.IMREAD_UNCHANGED)
-                if img is None:
-                    raise DatasetError(f"{src / rel}: cannot read the colour image (missing or corrupt)")
-                im = img.astype(np.float32)
-                log_gain += rs.normal(0.0, effects.exposure) if effects.exposure else 0.0
-                if effects.exposure_jump_rate and rs.random() < effects.exposure_jump_rate:
-                    log_gain += rs.normal(0.0, effects.exposure_jump)
-                log_gain = min(max(log_gain, lo), hi)
-                length = float(rs.uniform(0.5, 1.0) * effects.motion_blur_px) if effects.motion_blur_px else 0.0
-                angle += float(rs.normal(0.0, 0.3))
-                if effects.gamma != 1.0:
-                    im = np.float32(255.0) * (im / np.float32(255.0)) ** np.float32(effects.gamma)
-                if effects.vignette:
-                    if shade is None:
-                        h, w = im.shape[:2]
-                        yy, xx = np.mgrid[:h, :w].astype(np.float32)
-                        r2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
-                        shade = 1.0 - np.float32(effects.vignette) * r2
-                        shade = shade[..., None] if im.ndim == 3 else shade
-                    im *= shade
-                im *= np.float32(math.exp(log_gain))
-                if length >= 1.0:
-                    im = cv2.filter2D(im, -1, _blur_kernel(length, angle), borderType=cv2.BORDER_REFLECT)
-                if effects.noise:
-                    im += rs.normal(0.0, effects.noise, im.shape).astype(np.float32)
-                if size is not None:
-                    im = _resized(im, size, nearest=False)
-                out = tmp / rel
-                out.parent.mkdir(parents=True, exist_ok=True)
-                out.unlink(missing_ok=True)  # a link to the source's file is replaced, never written through
-                if not cv2.imwrite(str(out), np.clip(np.rint(im), 0, 255).astype(img.dtype)):
-                    raise OSError(f"{out}: cannot write the colour image")
-                stats.append((rel, math.exp(log_gain), length))
+        if colour:  # every frame, kept or not: the same gains as the full-rate copy
+            applied: list[tuple[float, float]] = []
+            rels = [row[0] for row in rgb_rows]
+            _rewrite_images(src, tmp, rels, "colour", _colour_changer(effects, size, applied))
+            stats = [(rel, g, b) for rel, (g, b) in zip(rels, applied)]
         if effects.changes_depth:
             _rewrite_images(src, tmp, [row[0] for row in depth_rows], "depth", _depth_changer(effects, size, camera.depth_scale))
         if size is not None:
