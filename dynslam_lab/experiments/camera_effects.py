@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..config import Config, config_to_dict
 from ..datasets.camera_effects import EFFECT_PRESETS, CameraEffects, apply_camera_effects, effects_record
-from .robustness import ATE_BOUND_M, FILTERS, SequenceSpec, _fmt, _write_text, resumable_run
+from .robustness import ATE_BOUND_M, SequenceSpec, _filters, _fmt, _write_text, resumable_run
 
 __all__ = ["ORIGINAL", "effect_copy", "run_camera_effects", "camera_effects_summary", "camera_effects_markdown"]
 
@@ -57,16 +57,8 @@ def run_camera_effects(sequences: list[SequenceSpec], outdir: str | Path, effect
     effects = dict(EFFECT_PRESETS if effects is None else effects)
     if ORIGINAL in effects:
         raise ValueError(f"camera effects: {ORIGINAL!r} names the unchanged sequence, not an effect")
-    known = dict(FILTERS)
-    if onnx_model is not None:
-        if not Path(onnx_model).is_file():
-            raise FileNotFoundError(f"{onnx_model}: ONNX model not found (onnx_model)")
-        known["full+onnx"] = ("full", f"onnx:{onnx_model}")
     labels = list(filters) if filters is not None else ["geometry", "full+oracle"]
-    unknown = [f for f in labels if f not in known]
-    if unknown:
-        raise ValueError(f"camera effects: unknown filters {unknown}; choose from {list(known)}"
-                         + ("" if onnx_model is not None else " (full+onnx needs an ONNX model)"))
+    known = _filters(onnx_model, labels, what="camera effects", also=())
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     fingerprint = json.dumps(config_to_dict(config), sort_keys=True, default=str)

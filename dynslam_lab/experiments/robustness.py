@@ -229,7 +229,11 @@ def resumable_run(root: Path, run_dir: Path, config: Config, fingerprint: str, f
     return row
 
 
-def _filters(onnx_model: str | Path | None, only=None) -> dict[str, tuple[str, str]]:
+def _filters(onnx_model: str | Path | None, only=None, what: str = "robustness",
+             also: tuple[str, ...] = (REFERENCE,)) -> dict[str, tuple[str, str]]:
+    """Filter label -> ``(--filters, --detector)``: :data:`FILTERS`, with ``full+onnx`` when ``onnx_model`` is given
+    (which must exist), restricted to the labels ``only`` when given; a label neither there nor in ``also`` is an error
+    naming ``what`` asked for it."""
     out = dict(FILTERS)
     if onnx_model is not None:
         model = Path(onnx_model)
@@ -238,9 +242,10 @@ def _filters(onnx_model: str | Path | None, only=None) -> dict[str, tuple[str, s
         out = {**{k: v for k, v in out.items() if k != "oracle masks"}, "full+onnx": ("full", f"onnx:{model}"),
                "oracle masks": FILTERS["oracle masks"]}
     if only is not None:
-        unknown = [f for f in only if f not in out and f != REFERENCE]
+        unknown = [f for f in only if f not in out and f not in also]
         if unknown:
-            raise ValueError(f"robustness: unknown filters {unknown}; choose from {list(out) + [REFERENCE]}")
+            raise ValueError(f"{what}: unknown filters {unknown}; choose from {list(out) + list(also)}"
+                             + ("" if onnx_model is not None else " (full+onnx needs an ONNX model)"))
         out = {k: v for k, v in out.items() if k in only}
     return out
 
