@@ -5,6 +5,7 @@ Usage::
 
     python benchmarks/false_positives.py --sequences crowd_rpy,panel_rpy --frames 240
     python benchmarks/false_positives.py --sequences random_113 --filters geometry,full+oracle --config before.toml
+    python benchmarks/false_positives.py --roots COPY1,COPY2   # any rendered folders (e.g. camera-effect copies)
 
 Renders (cached) each synthetic sequence (stress scenes, ``random_N``, office presets) and runs each filter
 (``geometry`` = no detector; ``NAME+oracle`` with the oracle detector) without loop closing, scored against
@@ -25,6 +26,7 @@ from pathlib import Path
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sequences", default="crowd_rpy,panel_rpy", help="comma-separated stress scenes, random_N or office presets")
+    ap.add_argument("--roots", default=None, help="comma-separated folders of rendered sequences (with masks), e.g. camera-effect copies")
     ap.add_argument("--frames", type=int, default=240, help="frames rendered and run per sequence (default 240)")
     ap.add_argument("--filters", default="geometry", help="comma-separated: a filter (no detector) or FILTER+oracle")
     ap.add_argument("--config", default=None, help="a TOML file of parameters for every run")
@@ -33,12 +35,19 @@ def main(argv: list[str] | None = None) -> int:
 
     from dynslam_lab.config import Config, load_config
     from dynslam_lab.datasets.tum import TumSequence
-    from dynslam_lab.experiments.robustness import run_one, synthetic_specs
+    from dynslam_lab.experiments.robustness import SequenceSpec, run_one, synthetic_specs
     from dynslam_lab.experiments.scoring import FN_KINDS, FP_KINDS, KeypointScorer
 
     config = load_config(args.config, Config()) if args.config else Config()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="false_positives_"))
-    specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
+    if args.roots:
+        specs = []
+        for r in (r.strip() for r in args.roots.split(",") if r.strip()):
+            if not Path(r).is_dir():
+                ap.error(f"--roots: {r} is not a folder")
+            specs.append(SequenceSpec(Path(r).name, Path(r)))
+    else:
+        specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
     print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) | "
           + " | ".join(f"FN {k}" for k in FN_KINDS) + " |")
     print("|---|---|---|---|" + "---|" * (len(FP_KINDS) + 1 + len(FN_KINDS)))

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from ..detection.config import MotionPriorConfig
+from .depth_noise import DepthNoiseConfig
 from .depth_ransac import DepthRansacConfig
 from .epipolar import EpipolarConfig, LkConfig
 from .flow import FlowConfig
@@ -71,6 +72,7 @@ class ScreeningConfig:
     multiframe: MultiFrameConfig = field(default_factory=MultiFrameConfig)  # free-space test vs earlier frames (DynaSLAM, Bescos et al. 2018)
     temporal: TemporalConfig = field(default_factory=TemporalConfig)  # map points seen moving, the previous region as a prior (ours)
     regions: RegionConfig = field(default_factory=RegionConfig)  # region growing from the evidence over depth (ours, after DynaSLAM)
+    depth_noise: DepthNoiseConfig = field(default_factory=DepthNoiseConfig)  # the depth noise measured, the depth margins follow it (ours)
     priors: MotionPriorConfig = field(default_factory=MotionPriorConfig)  # class tables (detection.coco)
     # Stages of the "full" filter; add "level_rule" for Zhang et al.'s level rule. Default: see FILTER_PRESETS.
     full_stages: tuple[str, ...] = FILTER_PRESETS["full"]
@@ -121,5 +123,26 @@ class ScreeningConfig:
             epipolar=replace(ep, border_px=ep.border_px * s),
             geometry_mask_margin_px=max(0, round(self.geometry_mask_margin_px * s)),
             reference_width=int(width),  # the values are now those of this width: scaling again changes nothing
+        )
+
+    def for_depth_noise(self, scale: float) -> "ScreeningConfig":
+        """This configuration for a depth sensor ``scale`` times noisier than the Kinect model the margins were set
+        for (:class:`~dynslam_lab.dynamic.depth_noise.DepthNoiseMeter` measures it): the depth margins that grow
+        with the sensor's noise, ``depth_quadratic`` of the multi-frame free-space test and of the multi-view depth
+        test, are multiplied by ``scale``, and the reference pose's ``room_depth_noise`` (step 3c: the room's depth
+        alignment weighs and judges its distances against that noise) is ``scale``; the floors ``depth_m`` (a motion's
+        size, not the noise) stay. The result measures nothing more (``depth_noise.frames`` 0: what ``summary.json`` records; run again from it,
+        nothing is scaled twice). The same object at ``scale`` 1 or when measuring is off."""
+        if scale == 1.0 or self.depth_noise.frames == 0:
+            return self
+        if not scale > 0:
+            raise ValueError(f"ScreeningConfig.for_depth_noise: scale must be > 0, got {scale}")
+        mf, mv = self.multiframe, self.multiview
+        return replace(
+            self,
+            multiframe=replace(mf, depth_quadratic=mf.depth_quadratic * scale),
+            multiview=replace(mv, depth_quadratic=mv.depth_quadratic * scale),
+            reference=replace(self.reference, room_depth_noise=self.reference.room_depth_noise * scale),
+            depth_noise=replace(self.depth_noise, frames=0),
         )
 

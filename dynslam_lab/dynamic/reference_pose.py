@@ -102,6 +102,7 @@ class ReferencePoseConfig:
     room_depth_feature_weight: float = 1.0  # ... the room's own map matches join the depth's alignment with this weight on their squared whitened errors (they fix the slide along a wall and the floor the planes leave free; 0 = depth alone); ours
     room_depth_max_front: float = 0.75  # ... less objects standing in it: in front of their neighbours along more than this share of their depth-step outline and holding a larger share of the keypoints than of the depth cells (the features' likeliest puller is no witness against them; 1 = off); ours
     room_depth_min_m: float = 0.001  # ... and the distance before the alignment is at least this (m: a pose the depth noise cannot tell from the aligned one is not pulled); ours
+    room_depth_noise: float = 1.0  # the depth's noise in units of the Kinect model the step was set for (room_depth.depth_sigma): the alignment's sigma scales by it, and the gain is judged on the distances less the extra noise (room_depth_pulled); set from the noise measured (ScreeningConfig.for_depth_noise, docs/robustness.md "Another depth sensor"); ours
     room_depth_min_points: int = 200  # ... aligned on at least this many associated depth cells, else no test; ours
     room_depth_min_matches: int = 5  # ... a surface off the room whose matches (at least this many) miss the aligned pose moved; ours
     room_depth_miss: float = 3.0  # ... by more than this (sigma units; and segment_ratio times the room's own median) ...; ours
@@ -137,6 +138,8 @@ class ReferencePoseConfig:
             raise ValueError("ReferencePoseConfig: dominant_share in (0, 1], dominant_area_ratio >= 1 and dominant_gain >= "
                              f"dominant_gain_weak >= 1 required, got {self.dominant_share}, {self.dominant_area_ratio}, "
                              f"{self.dominant_gain}, {self.dominant_gain_weak}")
+        if not self.room_depth_noise > 0:
+            raise ValueError(f"ReferencePoseConfig.room_depth_noise must be > 0 (the Kinect model's units), got {self.room_depth_noise}")
         if not self.room_depth_gain >= 0 or not self.room_depth_min_m >= 0 or not 0 < self.room_depth_min_share <= 1 \
                 or not self.room_depth_miss > 0 or not self.room_depth_pull >= 1 or self.room_depth_min_points < 6 \
                 or self.room_depth_min_matches < 1:
@@ -474,6 +477,25 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     return out, T, room
 
 
+def room_depth_pulled(d_start: float, d_end: float, config: ReferencePoseConfig) -> bool:
+    """Whether aligning the room's depth lowered its median point-to-plane distance from ``d_start`` to ``d_end``
+    enough to say the feature pose had been pulled (step 3c, condition a): ``d_start >= room_depth_gain d_end`` and
+    ``d_start >= room_depth_min_m``.
+
+    The distance after the alignment is the depth noise; before it, the noise and the pose's offset together, about
+    ``d_start^2 = d_end^2 + d_pose^2``. On a sensor ``s = room_depth_noise`` times noisier than the Kinect model the
+    same pose offset hardly raises the median (``random_183`` with ``CameraEffects(depth_noise=0.005)``, a pose 28 mm
+    off: 10.8 mm against 9.4, where the Kinect gives 5.8 against 3.0), so the gain is judged on the distances with
+    the extra noise taken out: ``d_start^2 - d_end^2 >= (gain^2 - 1) (d_end / s)^2``, the same test as above at
+    ``s = 1``."""
+    gain, s = config.room_depth_gain, config.room_depth_noise
+    if not d_start >= config.room_depth_min_m:
+        return False
+    if s == 1.0:
+        return d_start >= gain * d_end
+    return d_start * d_start - d_end * d_end >= (gain * gain - 1.0) * (d_end / s) ** 2
+
+
 def depth_moved_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
                          labels: np.ndarray, matched: np.ndarray, config: ReferencePoseConfig, room: RoomDepth | None,
                          room_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -504,8 +526,8 @@ def depth_moved_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: 
         return none
     w = config.room_depth_feature_weight
     feats = ReprojectionTerm(X_w[on_room], uv[on_room], K, sigma[on_room] / np.sqrt(w)) if w > 0 else None
-    a = align_room(room, T_c_w, features=feats)
-    if a.n < config.room_depth_min_points or not a.d_start >= max(config.room_depth_gain * a.d_end, config.room_depth_min_m):
+    a = align_room(room, T_c_w, features=feats, sigma_scale=config.room_depth_noise)
+    if a.n < config.room_depth_min_points or not room_depth_pulled(a.d_start, a.d_end, config):
         return none
     e = _reprojection_px(a.T_c_w, X_w, uv, K) / sigma
     e_feat = _reprojection_px(T_c_w, X_w, uv, K) / sigma

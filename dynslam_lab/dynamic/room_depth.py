@@ -140,16 +140,18 @@ def reference_grid(small_depth: np.ndarray, camera: PinholeCamera) -> DepthGrid:
 
 def align_room(room: RoomDepth, T_start: np.ndarray, iterations: int = 8, huber: float = 2.0,
                prior_m: float = 0.05, prior_deg: float = 2.0, max_distance: float = 0.1,
-               tol_rad: float = 1e-5, tol_m: float = 1e-4, features: ReprojectionTerm | None = None) -> RoomAlignment:
+               tol_rad: float = 1e-5, tol_m: float = 1e-4, features: ReprojectionTerm | None = None,
+               sigma_scale: float = 1.0) -> RoomAlignment:
     """Gauss-Newton on the point-to-plane error of the room's points against the earlier depth, from
-    ``T_start`` (world -> camera), Huber-weighted at ``huber`` sigma (:func:`depth_sigma`), with a prior of
+    ``T_start`` (world -> camera), Huber-weighted at ``huber`` sigma (:func:`depth_sigma` times ``sigma_scale``, the
+    depth's noise in units of that model), with a prior of
     ``prior_m`` / ``prior_deg`` toward ``T_start``; associations farther than ``max_distance`` m are none.
     At most ``iterations`` steps, fewer once a step turns the camera by less than ``tol_rad`` and moves
     it by less than ``tol_m``. ``features``: the room's own map matches, fitted with the depth
     (:func:`~dynslam_lab.geometry.depth_alignment.align_depth`)."""
     if len(room.X) == 0:
         return RoomAlignment(T_start.copy(), float("nan"), float("nan"), 0)
-    term = DenseTerm(room.X, depth_sigma(room.X[:, 2]), room.ref, room.T_r_w, room.camera, max_distance=max_distance,
+    term = DenseTerm(room.X, depth_sigma(room.X[:, 2]) * sigma_scale, room.ref, room.T_r_w, room.camera, max_distance=max_distance,
                      T_prior=T_start, prior_sigma=(prior_m, prior_deg))
     return align_depth(term, T_start, iterations, huber, tol_rad, tol_m, features)
 

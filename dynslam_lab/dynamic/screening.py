@@ -54,6 +54,7 @@ import numpy as np
 from ..geometry.se3 import se3_inv, transform_points
 from .config import FILTER_PRESETS, PRESET_OVERRIDES, STAGES, ScreeningConfig
 from .context import ScreeningContext
+from .depth_noise import DepthNoiseMeter
 from .history import FarFrames, FrameHistory
 from .oracle import OracleScreener
 from .stages import DETECTION_STAGES, STAGE_FUNCTIONS, FrameWork, ScreenerMemory, combine, finish, restoration_stage
@@ -151,16 +152,21 @@ class Screener:
         #: ids of map points on surfaces the last frame found moving against the room (reference pose, step 3b,
         #: a surface holding most matches): their stored positions are stale, the SLAM system removes them
         self.moved_map_ids = np.zeros(0, np.int64)
-        self._width_config: tuple[int, ScreeningConfig, ScreeningConfig] | None = None  # (width, config, for_width)
+        #: the depth noise of the first frames, against the Kinect model (``depth_noise.ratio``; module depth_noise)
+        self.depth_noise = DepthNoiseMeter()
+        self._run_config: tuple[int, float, ScreeningConfig, ScreeningConfig] | None = None  # (width, scale, config, result)
 
     def config_for(self, width: int) -> ScreeningConfig:
         """The configuration the stages run with on images ``width`` px wide (:meth:`ScreeningConfig.for_width`:
-        the pixel extents scaled to the image; ``config`` itself at its reference width). Follows ``config`` when it is
-        replaced (a notebook's slider)."""
-        cached = self._width_config
-        if cached is None or cached[0] != int(width) or cached[1] is not self.config:
-            cached = self._width_config = (int(width), self.config, self.config.for_width(int(width)))
-        return cached[2]
+        the pixel extents scaled to the image; ``config`` itself at its reference width) from a depth sensor as noisy
+        as measured (:meth:`ScreeningConfig.for_depth_noise`; unchanged at the Kinect's noise). Follows ``config``
+        when it is replaced (a notebook's slider)."""
+        scale = self.depth_noise.scale(self.config.depth_noise)
+        cached = self._run_config
+        if cached is None or cached[0] != int(width) or cached[1] != scale or cached[2] is not self.config:
+            result = self.config.for_width(int(width)).for_depth_noise(scale)
+            cached = self._run_config = (int(width), scale, self.config, result)
+        return cached[3]
 
     def __repr__(self) -> str:
         return f"Screener({self.name!r}, stages={self.stages})"
@@ -208,11 +214,19 @@ class Screener:
         last = mem.history.last
         if last is not None and last.gray.shape != frame.gray.shape:
             self.reset()  # a new image size: the history does not apply
+            self.depth_noise.reset()  # nor, perhaps, the camera
+        noise_ms = None
+        if self.depth_noise.wants(self.config.depth_noise):
+            t = time.perf_counter()
+            self.depth_noise.add(frame.depth, self.config.depth_noise)
+            noise_ms = _ms(t)
         if context is not None:
             correction = mem.history.update_poses(context.poses)
             if correction is not None and np.linalg.norm(correction[:3, 3]) > self.config.multiframe.far_reset_m:
                 mem.far.clear()  # a loop closure moved the world: the far frames' poses are stale
         w = FrameWork(frame, uv, detections, context, self.config_for(frame.gray.shape[1]), mem)
+        if noise_ms is not None:
+            w.timings["depth_noise"] = noise_ms
         if "epipolar" in self.stages or "multiview" in self.stages:
             w.start_pairs()  # LK with the previous frame beside the stages before them
         for name in self.stages:

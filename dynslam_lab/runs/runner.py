@@ -147,6 +147,7 @@ class RunRecorder:
     error_shapes: list[str] = field(default_factory=list)
     shape_counts: dict[str, int] = field(default_factory=dict)
     config_dict: dict | None = None
+    _config_key: int = -1
 
     def failed(self, index: int, timestamp: float, exc: Exception) -> None:
         """A frame that could not be processed at all (logged: the first few of each kind of error)."""
@@ -217,9 +218,11 @@ class RunRecorder:
         w.summary(summary)
 
     def _config(self, system: System) -> dict:
-        """The config every stage runs with (fixed for the run: computed once)."""
-        if self.config_dict is None:
-            self.config_dict = config_to_dict(system.effective_config())
+        """The config every stage runs with (fixed for the run once the screener has measured the depth noise of
+        its first frames: computed again only while that measurement grows)."""
+        key = len(_depth_noise_ratios(system))
+        if self.config_dict is None or key != self._config_key:
+            self.config_dict, self._config_key = config_to_dict(system.effective_config()), key
         return self.config_dict
 
     def summary(self, sequence, system: System, n_frames: int, complete: bool, state: str = "running",
@@ -247,7 +250,13 @@ class RunRecorder:
             self.errors[:25] + [f"... {len(self.errors) - 50} more ..."] + self.errors[-25:],
             "pipeline": dict(system.description),
             "config": self._config(system),
+            "depth_noise_ratio": (float(np.median(r)) if (r := _depth_noise_ratios(system)) else None),
         }
+
+
+def _depth_noise_ratios(system: System) -> list[float]:
+    """The depth noise the screener measured on the first frames (``dynamic.depth_noise``; empty without one)."""
+    return list(getattr(getattr(system.screener, "depth_noise", None), "ratios", ()))
 
 
 class _PreparingSequence:
