@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     short["median_ms"] = {k: round(v, 1) for k, v in summary["timing_median_ms"].items() if v is not None}
     if summary.get("lost_frames"):
         short["lost_frames"] = summary["lost_frames"][:20]
+    if summary.get("depth_noise_ratio") is not None:  # the screener's measurement (docs/robustness.md "Another depth sensor")
+        short["depth_noise_ratio"] = round(summary["depth_noise_ratio"], 2)
     print(dumps(short))
     if summary["tracked"] == 0:
         first = f"; first error: {summary['errors'][0]}" if summary.get("errors") else ""

@@ -131,8 +131,8 @@ class ScreeningConfig:
         with the sensor's noise, ``depth_quadratic`` of the multi-frame free-space test and of the multi-view depth
         test, are multiplied by ``scale``, and the reference pose's ``room_depth_noise`` (step 3c: the room's depth
         alignment weighs and judges its distances against that noise) is ``scale``; the floors ``depth_m`` (a motion's
-        size, not the noise) stay. The result measures nothing more (``depth_noise.frames`` 0: what ``summary.json`` records; run again from it,
-        nothing is scaled twice). The same object at ``scale`` 1 or when measuring is off."""
+        size, not the noise) stay. The result measures nothing more (``depth_noise.frames`` 0: what ``summary.json``
+        records; run again from it, nothing is scaled twice). The same object at ``scale`` 1 or when measuring is off."""
         if scale == 1.0 or self.depth_noise.frames == 0:
             return self
         if not scale > 0:

@@ -48,7 +48,7 @@ __all__ = ["DepthNoiseConfig", "depth_noise_ratio", "DepthNoiseMeter", "MEDIAN_A
 MEDIAN_ABS_D2 = 0.6744897501960817 * math.sqrt(6.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DepthNoiseConfig:
     """``[screening.depth_noise]``: the depth noise measured from the images (module docstring)."""
 

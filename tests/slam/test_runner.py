@@ -69,6 +69,18 @@ def test_run_sequence_writes_layout_and_survives_a_bad_frame(seqdir, tmp_path):
     assert saved["schema_version"] == 1 and saved["pipeline"] == {"detector": "none", "filters": "none", "loop_closing": True}
 
 
+def test_cli_run_prints_the_depth_noise_the_screener_measured(seqdir, tmp_path, capsys):
+    """With a screener the run measures the depth noise of its first frames (docs/robustness.md "Another depth
+    sensor") and says what it read: this test scene's depth has no noise and reads about 0 (nothing scaled)."""
+    out = tmp_path / "geo"
+    assert main(["run", str(seqdir), "--out", str(out), "--max-frames", "6", "--filters", "geometry", "--no-loop",
+                 "--quiet"]) == 0
+    printed = json.loads(capsys.readouterr().out.splitlines()[0])
+    s = json.loads((out / "summary.json").read_text())
+    assert printed["depth_noise_ratio"] == round(s["depth_noise_ratio"], 2)
+    assert 0.0 <= s["depth_noise_ratio"] < 0.2 and s["config"]["screening"]["depth_noise"]["frames"] == 5
+
+
 def test_cli_run_with_toml_override_and_errors(seqdir, tmp_path, capsys):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[orb]\nn_features = 800\n[tracking]\nmin_local_inliers = 25\n")
