@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from dynslam_lab.config import Config, load_config
     from dynslam_lab.experiments.camera_effects import camera_effects_markdown, run_camera_effects
-    from dynslam_lab.experiments.robustness import SequenceSpec, synthetic_specs
+    from dynslam_lab.experiments.robustness import root_specs, synthetic_specs
 
     if not args.sequences and not args.roots:
         ap.error("give --sequences or --roots")
@@ -48,11 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     effects = {e.strip(): EFFECT_PRESETS[e.strip()] for e in args.effects.split(",") if e.strip()}
     t0 = time.time()
     specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames) if args.sequences else []
-    for r in (args.roots.split(",") if args.roots else []):
-        root = Path(r.strip())
-        if not root.is_dir():
-            ap.error(f"--roots: {root} is not a folder")
-        specs.append(SequenceSpec(root.name, root))
+    try:
+        specs += root_specs(args.roots or "")
+    except ValueError as exc:
+        ap.error(str(exc))
     print(f"{len(specs)} sequences ready ({time.time() - t0:.0f} s)")
 
     def line(r: dict) -> None:

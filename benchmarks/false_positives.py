@@ -35,17 +35,16 @@ def main(argv: list[str] | None = None) -> int:
 
     from dynslam_lab.config import Config, load_config
     from dynslam_lab.datasets.tum import TumSequence
-    from dynslam_lab.experiments.robustness import SequenceSpec, run_one, synthetic_specs
+    from dynslam_lab.experiments.robustness import root_specs, run_one, synthetic_specs
     from dynslam_lab.experiments.scoring import FN_KINDS, FP_KINDS, KeypointScorer
 
     config = load_config(args.config, Config()) if args.config else Config()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="false_positives_"))
     if args.roots:
-        specs = []
-        for r in (r.strip() for r in args.roots.split(",") if r.strip()):
-            if not Path(r).is_dir():
-                ap.error(f"--roots: {r} is not a folder")
-            specs.append(SequenceSpec(Path(r).name, Path(r)))
+        try:
+            specs = root_specs(args.roots)
+        except ValueError as exc:
+            ap.error(str(exc))
     else:
         specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
     print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) | "

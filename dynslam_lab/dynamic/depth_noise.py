@@ -77,11 +77,12 @@ def depth_noise_ratio(depth: np.ndarray, step: int = 4, min_samples: int = 2000,
                       model: DepthNoise = DepthNoise()) -> float:
     """The noise of ``depth (h, w)`` (metres, 0 = no reading) in units of the Kinect model ``sigma_N(z)`` (module
     docstring): 1 for the model's noise. NaN when fewer than ``min_samples`` second differences can be taken."""
-    z = np.asarray(depth, np.float64)
+    z = np.asarray(depth)
     if z.ndim != 2:
         raise ValueError(f"depth_noise_ratio: depth must be (h, w), got shape {z.shape}")
-    d_rows, z_rows = _second_differences(z[::step])
-    d_cols, z_cols = _second_differences(z[:, ::step].T)
+    # only the measured rows and columns in float64 (not the whole image)
+    d_rows, z_rows = _second_differences(z[::step].astype(np.float64))
+    d_cols, z_cols = _second_differences(z[:, ::step].T.astype(np.float64))
     d = np.concatenate([d_rows, d_cols])
     if len(d) < min_samples:
         return float("nan")

@@ -44,7 +44,7 @@ from ..runs import run_sequence
 from ..runs.layout import atomic_write
 from .scoring import KeypointScorer
 
-__all__ = ["SequenceSpec", "FILTERS", "REFERENCE", "run_one", "resumable_run", "run_robustness", "summarise", "robustness_markdown",
+__all__ = ["SequenceSpec", "root_specs", "FILTERS", "REFERENCE", "run_one", "resumable_run", "run_robustness", "summarise", "robustness_markdown",
            "robustness_plot", "TARGETS", "TARGET_COVERAGE", "ATE_BOUND_M", "REFERENCE_LOST_SHARE", "by_kind", "scene_kind", "synthetic_specs"]
 
 #: Filter label -> (``--filters``, ``--detector``); ``full+onnx`` is added when a model is given.
@@ -92,6 +92,18 @@ class SequenceSpec:
     name: str
     root: Path
     reference: Path | None = None
+
+
+def root_specs(roots: str) -> list[SequenceSpec]:
+    """One :class:`SequenceSpec` per folder of the comma-separated ``roots`` (a benchmark's ``--roots``: sequences in
+    the TUM layout, named by their folder); a name that is not a folder is a ValueError naming it."""
+    specs = []
+    for r in (r.strip() for r in roots.split(",") if r.strip()):
+        root = Path(r)
+        if not root.is_dir():
+            raise ValueError(f"--roots: {root} is not a folder")
+        specs.append(SequenceSpec(root.name, root))
+    return specs
 
 
 def synthetic_specs(names, n_frames: int | None = None, seed: int = 0) -> list[SequenceSpec]:

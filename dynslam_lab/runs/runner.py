@@ -220,7 +220,8 @@ class RunRecorder:
     def _config(self, system: System) -> dict:
         """The config every stage runs with (fixed for the run once the screener has measured the depth noise of
         its first frames: computed again only while that measurement grows)."""
-        key = len(_depth_noise_ratios(system))
+        meter = _depth_noise_meter(system)
+        key = len(meter.ratios) if meter is not None else 0
         if self.config_dict is None or key != self._config_key:
             self.config_dict, self._config_key = config_to_dict(system.effective_config()), key
         return self.config_dict
@@ -250,13 +251,15 @@ class RunRecorder:
             self.errors[:25] + [f"... {len(self.errors) - 50} more ..."] + self.errors[-25:],
             "pipeline": dict(system.description),
             "config": self._config(system),
-            "depth_noise_ratio": (float(np.median(r)) if (r := _depth_noise_ratios(system)) else None),
+            "depth_noise_ratio": (meter.ratio if (meter := _depth_noise_meter(system)) is not None and meter.ratios
+                                  else None),
         }
 
 
-def _depth_noise_ratios(system: System) -> list[float]:
-    """The depth noise the screener measured on the first frames (``dynamic.depth_noise``; empty without one)."""
-    return list(getattr(getattr(system.screener, "depth_noise", None), "ratios", ()))
+def _depth_noise_meter(system: System):
+    """The screener's :class:`~dynslam_lab.dynamic.depth_noise.DepthNoiseMeter` (the depth noise of the first
+    frames), or None without a screener that measures it (none, the oracle)."""
+    return getattr(system.screener, "depth_noise", None)
 
 
 class _PreparingSequence:

@@ -21,3 +21,23 @@ def test_the_table_has_a_row_per_run_with_every_kind(tmp_path, capsys):
     none_fp = [int(v.replace(",", "")) for v in rows["none"].group(5).split("|") if v.strip()]
     assert none_fp == [0, 0, 0, 0, 0]  # `none` judges nothing dynamic: no false positive of any kind
     assert (tmp_path / "runs" / "boxes_xyz_geometry" / "trajectory.txt").is_file()
+
+
+def test_roots_runs_rendered_folders_and_refuses_a_missing_one(tmp_path, capsys):
+    """``--roots``: any rendered folder (a camera-effect copy, say) is run under its folder's name; a name that is not
+    a folder stops the benchmark with the name (``experiments.robustness.root_specs``, shared with camera_effects.py)."""
+    import pytest
+
+    from dynslam_lab.datasets.synthetic import synthetic_sequence
+    from dynslam_lab.experiments.robustness import root_specs
+
+    root = synthetic_sequence("boxes_xyz", n_frames=12, seed=0)
+    specs = root_specs(f" {root}, ,")
+    assert [(s.name, s.root) for s in specs] == [(root.name, root)]  # empty entries skipped
+    with pytest.raises(ValueError, match="--roots: .*nowhere is not a folder"):
+        root_specs(f"{root},{tmp_path / 'nowhere'}")
+    with pytest.raises(SystemExit):
+        false_positives.main(["--roots", str(tmp_path / "nowhere")])
+    assert "nowhere is not a folder" in capsys.readouterr().err
+    assert false_positives.main(["--roots", str(root), "--filters", "none", "--out", str(tmp_path / "runs")]) == 0
+    assert f"| `{root.name}` | none |" in capsys.readouterr().out
