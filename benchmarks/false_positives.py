@@ -11,8 +11,11 @@ Renders (cached) each synthetic sequence (stress scenes, ``random_N``, office pr
 (``geometry`` = no detector; ``NAME+oracle`` with the oracle detector) without loop closing, scored against
 the renderer's truth (``dynslam_lab.experiments.scoring.KeypointScorer``). Prints one markdown row per run: ATE,
 keypoint precision / recall, the false positives by kind (``FP_KINDS``), the stages that flagged most of them,
-and the misses (false negatives) on the movers' silhouettes and inside them (``FN_KINDS``).
-docs/robustness.md ("Where the false positives are") reads such a table.
+the misses (false negatives) on the movers' silhouettes and inside them (``FN_KINDS``), the misses without a depth
+reading, and the precision / recall of the keypoints farther than ``OUTLINE_BAND_PX`` (4 px) from every moving
+outline (``KeypointScorer.away_from_outlines``). A second table gives, where the sequence has the renderer's
+``coverage.csv``, the recall by the movers' image speed (``recall_by_image_speed``: px a frame, at most).
+docs/robustness.md ("Where the false positives are", "Where the misses are") reads such tables.
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     from dynslam_lab.config import Config, load_config
     from dynslam_lab.datasets.tum import TumSequence
     from dynslam_lab.experiments.robustness import root_specs, run_one, synthetic_specs
-    from dynslam_lab.experiments.scoring import FN_KINDS, FP_KINDS, KeypointScorer
+    from dynslam_lab.datasets.synthetic import read_coverage
+    from dynslam_lab.experiments.scoring import FN_KINDS, FP_KINDS, IMAGE_SPEED_EDGES_PX, KeypointScorer, recall_by_image_speed
 
     config = load_config(args.config, Config()) if args.config else Config()
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="false_positives_"))
@@ -48,20 +52,37 @@ def main(argv: list[str] | None = None) -> int:
     else:
         specs = synthetic_specs([n.strip() for n in args.sequences.split(",") if n.strip()], n_frames=args.frames)
     print("| scene | filter | ATE m | P / R | " + " | ".join(f"FP {k}" for k in FP_KINDS) + " | stages (FP) | "
-          + " | ".join(f"FN {k}" for k in FN_KINDS) + " |")
-    print("|---|---|---|---|" + "---|" * (len(FP_KINDS) + 1 + len(FN_KINDS)))
+          + " | ".join(f"FN {k}" for k in FN_KINDS) + " | FN no depth | P / R away from outlines |")
+    print("|---|---|---|---|" + "---|" * (len(FP_KINDS) + 3 + len(FN_KINDS)))
     t0 = time.time()
+    speed_rows = []
     for spec in specs:
         for label in (f.strip() for f in args.filters.split(",") if f.strip()):
             filters, _, detector = label.partition("+")
             scorer = KeypointScorer()
-            r = run_one(TumSequence(spec.root), out / f"{spec.name}_{label.replace('+', '_')}", config, filters,
+            seq = TumSequence(spec.root)
+            r = run_one(seq, out / f"{spec.name}_{label.replace('+', '_')}", config, filters,
                         detector or "none", loop_closing=False, scorer=scorer)
             kinds = scorer.fp_by_kind
             stages = ", ".join(f"{k or '?'} {v}" for k, v in scorer.fp_by_stage.most_common(3))
+            away = scorer.away_from_outlines
             print(f"| `{spec.name}` | {label} | {r['ate_rmse_m']:.4f} | {r['precision']:.2f} / {r['recall']:.2f} | "
                   + " | ".join(f"{kinds[k]:,}" for k in FP_KINDS) + f" | {stages} | "
-                  + " | ".join(f"{scorer.fn_by_kind[k]:,}" for k in FN_KINDS) + " |", flush=True)
+                  + " | ".join(f"{scorer.fn_by_kind[k]:,}" for k in FN_KINDS)
+                  + f" | {scorer.fn_without_depth:,} | {away.precision:.2f} / {away.recall:.2f} |", flush=True)
+            if (spec.root / "coverage.csv").is_file() and scorer.by_instance:
+                rows = recall_by_image_speed(scorer.by_instance, read_coverage(spec.root), seq.camera.fx)
+                speed_rows.append((spec.name, label, rows))
+    if speed_rows:
+        bins = [row["bin"] for row in speed_rows[0][2]]
+        print(f"\nrecall by the movers' image speed (px a frame, at most; bins {IMAGE_SPEED_EDGES_PX}): recall (keypoints, "
+              "share of the misses)\n")
+        print("| scene | filter | " + " | ".join(bins) + " |")
+        print("|---|---|" + "---|" * len(bins))
+        for name, label, rows in speed_rows:
+            cells = [f"{row['recall']:.2f} ({row['keypoints']:,}, {100 * row['miss_share']:.0f} %)" if row["keypoints"] else "-"
+                     for row in rows]
+            print(f"| `{name}` | {label} | " + " | ".join(cells) + " |")
     print(f"\n{len(specs)} sequences in {time.time() - t0:.0f} s; runs in {out}")
     return 0
 

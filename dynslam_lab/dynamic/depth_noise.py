@@ -94,20 +94,28 @@ def depth_noise_ratio(depth: np.ndarray, step: int = 4, min_samples: int = 2000,
 class DepthNoiseMeter:
     """The depth noise of a run's first frames (:func:`depth_noise_ratio`, the median over ``config.frames``
     frames that had enough readings). ``scale`` is what the depth margins are multiplied by: 1 until a frame was
-    measured, and at or below ``tolerance`` times the model's noise."""
+    measured, and at or below ``tolerance`` times the model's noise. A sequence whose depth stays too sparse to
+    measure is tried on at most ``ATTEMPTS_PER_FRAME * config.frames`` frames, then left at scale 1."""
+
+    #: frames tried per frame wanted, before a depth too sparse to measure is given up on
+    ATTEMPTS_PER_FRAME = 4
 
     def __init__(self) -> None:
         self.ratios: list[float] = []
+        self.attempts = 0
 
     def reset(self) -> None:
         self.ratios = []
+        self.attempts = 0
 
     def wants(self, config: DepthNoiseConfig) -> bool:
-        """Whether the next frame should be measured."""
-        return len(self.ratios) < config.frames
+        """Whether the next frame should be measured: fewer than ``config.frames`` measured, and fewer than
+        ``ATTEMPTS_PER_FRAME * config.frames`` tried."""
+        return len(self.ratios) < config.frames and self.attempts < self.ATTEMPTS_PER_FRAME * config.frames
 
     def add(self, depth: np.ndarray, config: DepthNoiseConfig) -> None:
         """Measure one frame's depth (a frame with too few readings is skipped)."""
+        self.attempts += 1
         r = depth_noise_ratio(depth, config.step, config.min_samples)
         if math.isfinite(r):
             self.ratios.append(r)

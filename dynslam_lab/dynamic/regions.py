@@ -47,6 +47,10 @@ class RegionConfig:
     prior_on_fresh_surfaces: bool = True  # the prior reopens confirmed-static cells only on surfaces holding min_fresh_cells of fresh evidence; ours
     crease_deg: float = 35.0  # surfaces (reference pose, step 3b) split where normals turn more than this (deg); ours
     edge_cells: int = 0  # a keypoint whose own cell straddles a depth edge (a mover's silhouette: no reduced depth) takes the region's verdict from a cell up to this many cells away on its own depth (on_region); 0 = its own cell only (the default: measured, docs/robustness.md "Keypoints on a mover's silhouette"); ours
+    silhouette_px: float = 0.0  # > 0: a keypoint without depth within this distance of the grown region (a corner on a mover's silhouette, where the sensor gives no depth) is judged by its flow with the previous frame: dynamic when it follows the flow of the dynamic keypoints around it rather than the camera's (follows_the_mover); 0 = off; ours
+    silhouette_reach_px: float = 24.0  # ... the flow of the dynamic keypoints with depth within this distance (px; at least 3 of them); ours
+    silhouette_min_px: float = 1.0  # ... when the keypoint's flow misses the static prediction by at least this (px) ...; ours
+    silhouette_ratio: float = 0.5  # ... and the movers' flow by at most this share of that; ours
     surface_share: float = 0.0  # > 0: a surface (depth segment of step 3b, split at creases) with at least this share of its cells in the region joins it whole, keypoints and cells (the region misses a mover's parts the earlier frames saw at the same depth, where the ORB budget puts its keypoints); 0 = off; ours
 
     def __post_init__(self) -> None:
@@ -56,6 +60,10 @@ class RegionConfig:
             raise ValueError(f"RegionConfig.crease_deg must be in (0, 180) degrees, got {self.crease_deg}")
         if not 0 <= self.edge_cells <= 3:
             raise ValueError(f"RegionConfig.edge_cells must be in 0..3, got {self.edge_cells}")
+        if self.silhouette_px < 0 or not self.silhouette_reach_px > 0 or not self.silhouette_min_px > 0:
+            raise ValueError("RegionConfig: silhouette_px >= 0, silhouette_reach_px > 0 and silhouette_min_px > 0 required")
+        if not 0 < self.silhouette_ratio < 1:
+            raise ValueError(f"RegionConfig.silhouette_ratio must be in (0, 1), got {self.silhouette_ratio}")
         if not 0 <= self.surface_share <= 1:
             raise ValueError(f"RegionConfig.surface_share must be in [0, 1], got {self.surface_share}")
         if not 0 < self.continuity_rel < 1:
@@ -229,6 +237,41 @@ def on_region(region: np.ndarray, small: np.ndarray, r: np.ndarray, c: np.ndarra
             zn = small[rr, cc]
             with np.errstate(invalid="ignore"):
                 out |= edge & region[rr, cc] & (zn > 0) & ~(np.abs(z - zn) > 2 * rel * zn)
+    return out
+
+
+def follows_the_mover(uv: np.ndarray, uv_prev: np.ndarray, static_prev: np.ndarray, candidates: np.ndarray,
+                      dynamic: np.ndarray, reach_px: float, min_px: float, ratio: float,
+                      min_neighbours: int = 3) -> np.ndarray:
+    """``(N,)`` bool: the ``candidates`` whose flow follows the movers around them rather than the camera (ours).
+
+    A corner on a mover's silhouette has no depth (the sensor loses it at depth edges), so no depth test judges
+    it, and the region's cells beside it may be the mover's or the wall's. Its flow tells: two hypotheses for
+    where it was in the previous frame, ``static_prev`` (the camera's motion alone) and its own position moved by
+    the median flow ``uv_prev - uv`` of the keypoints judged ``dynamic`` within ``reach_px`` (at least
+    ``min_neighbours`` of them with a flow). It follows the mover when its matched ``uv_prev`` misses the static
+    prediction by at least ``min_px`` and the movers' by at most ``ratio`` times that. ``uv_prev`` is nan where
+    the keypoint was not matched; such keypoints, and those with too few moving neighbours, stay as they are.
+    """
+    uv = np.asarray(uv, np.float64)
+    flow = np.asarray(uv_prev, np.float64) - uv
+    has_flow = np.isfinite(flow).all(axis=1)
+    out = np.zeros(len(uv), bool)
+    cand = np.flatnonzero(candidates & has_flow & np.isfinite(static_prev).all(axis=1))
+    movers = np.flatnonzero(dynamic & has_flow)
+    if len(cand) == 0 or len(movers) < min_neighbours:
+        return out
+    d2 = ((uv[cand, None, :] - uv[None, movers, :]) ** 2).sum(axis=2)  # (C, M)
+    near = d2 <= reach_px * reach_px
+    enough = near.sum(axis=1) >= min_neighbours
+    if not enough.any():
+        return out
+    cand, near = cand[enough], near[enough]
+    fm = np.where(near[:, :, None], flow[movers][None, :, :], np.nan)  # (C, M, 2)
+    mover_flow = np.nanmedian(fm, axis=1)  # (C, 2)
+    off_static = np.linalg.norm(uv_prev[cand] - static_prev[cand], axis=1)
+    off_mover = np.linalg.norm(flow[cand] - mover_flow, axis=1)
+    out[cand] = (off_static >= min_px) & (off_mover <= ratio * off_static)
     return out
 
 

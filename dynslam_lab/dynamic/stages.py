@@ -45,7 +45,7 @@ from .multiframe import eroded_depth, free_space_test, grid_points, vanished_tes
 from .multiview import multiview_check
 from .reference_pose import ReferencePose, map_reference_pose
 from .room_depth import RoomDepth, reference_grid, room_labels, room_points
-from .regions import cells_at, depth_continuity, grow_regions, on_region, prior_on_fresh_surfaces, splat, supported_regions, surface_segments, whole_surfaces
+from .regions import cells_at, depth_continuity, follows_the_mover, grow_regions, on_region, prior_on_fresh_surfaces, splat, supported_regions, surface_segments, whole_surfaces
 from .semantic import LEVEL_CODES, SemanticResult, semantic_prior
 from .table import depth_at, values_at
 from .temporal import MovingMapPoints, warp_region
@@ -700,6 +700,46 @@ def regions_stage(w: FrameWork) -> None:
         hh, ww = min(H, full.shape[0]), min(W, full.shape[1])
         out[:hh, :ww] = full[:hh, :ww].astype(bool)
         w.region_parts.append(out)
+        if cfg.silhouette_px > 0:
+            w.stages["regions"] |= _silhouette_keypoints(w, out)
+
+
+def _silhouette_keypoints(w: FrameWork, region: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: keypoints without depth within ``silhouette_px`` of the grown ``region (H, W)`` whose flow
+    with the previous frame follows the dynamic keypoints around them (:func:`~.regions.follows_the_mover`;
+    ``RegionConfig.silhouette_px``). Their static prediction takes the farthest reduced depth within two cells
+    (the background behind a silhouette); none without LK pairs or a motion from the previous frame."""
+    cfg = w.config.regions
+    none = np.zeros(w.n, bool)
+    pairs = w.pairs()
+    T_c_p = w.motion_from_previous()
+    if pairs is None or T_c_p is None:
+        return none
+    uv_prev, matched = pairs
+    dist = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, 3)
+    cand = ~(w.z > 0) & matched & (values_at(dist, w.uv, outside=np.inf) <= cfg.silhouette_px)
+    if not cand.any():
+        return none
+    dynamic = w.stages["regions"].copy()
+    for name in ("multiframe", "temporal"):
+        if name in w.stages:
+            dynamic |= w.stages[name]
+    dynamic &= w.z > 0
+    small = w.small_depth
+    far = cv2.dilate(small.astype(np.float32), np.ones((5, 5), np.uint8))
+    r, c, _ = cells_at(w.uv, w.config.multiframe.factor, small.shape)
+    idx = np.flatnonzero(cand)
+    z = far[r[idx], c[idx]].astype(np.float64)
+    z[~(z > 0)] = 1e3  # no depth anywhere near: the camera's rotation alone
+    X_p = transform_points(se3_inv(T_c_p), w.camera.backproject(w.uv_undistorted[idx], z))
+    static_prev = np.full((w.n, 2), np.nan)
+    p, zp = w.camera.project(X_p)
+    ok = zp > 0
+    static_prev[idx[ok]] = p[ok]
+    prev_und = np.full((w.n, 2), np.nan)  # in the undistorted pixels of the prediction
+    prev_und[matched] = w.camera.undistort_points(uv_prev[matched])
+    return follows_the_mover(w.uv_undistorted, prev_und, static_prev, cand, dynamic,
+                             cfg.silhouette_reach_px, cfg.silhouette_min_px, cfg.silhouette_ratio)
 
 
 #: Evidence stage name -> function, in run order (``config.STAGES``). ``level_rule`` changes how

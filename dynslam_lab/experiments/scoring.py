@@ -31,7 +31,19 @@ from the nearest instance moving in that frame (``FP_DISTANCE_EDGES_PX``: the ou
 corner on an occluding contour moves with the mover though its pixel centre is on the background; 4-12 px;
 12-40 px; farther, where a whole static region was judged moving), after those on movers at rest.
 ``fn_by_kind`` splits the misses the same way from the inside: a keypoint on a moving instance within 4 px of
-its outline (the silhouette, whose cell of the reduced depth straddles the depth edge) or deeper inside.
+its outline (the silhouette, whose cell of the reduced depth straddles the depth edge) or deeper inside;
+``fn_without_depth`` counts the misses where the sensor gave no depth.
+
+**Away from the outlines.** A corner on a mover's outline is made by the mover's edge and the background behind
+it; it moves with the mover whichever side of the outline its pixel centre falls on, and the sensor often gives
+it no depth. The truth calls it dynamic or static by that centre alone. ``away_from_outlines`` therefore also
+scores only the keypoints farther than :data:`OUTLINE_BAND_PX` from every moving outline (either side): what a
+filter does where the truth is not a matter of a pixel. The strict scores stay the headline numbers.
+
+**By the movers' image speed.** ``by_instance`` keeps, per frame and moving instance, the keypoints on it and
+how many were judged dynamic; :func:`recall_by_image_speed` bins them by ``f v dt / z`` (the instance's speed
+``v`` and mean depth ``z`` from the renderer's ``coverage.csv``): how far the mover can have moved in the image
+since the previous frame, at most (a motion along the line of sight moves it less).
 """
 
 from __future__ import annotations
@@ -45,7 +57,8 @@ import numpy as np
 from ..dynamic.oracle import moving_mask, truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
 
-__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS"]
+__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "recall_by_image_speed",
+           "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS", "OUTLINE_BAND_PX", "IMAGE_SPEED_EDGES_PX"]
 
 #: Bin edges (px) of a false positive's distance from the nearest moving instance (``KeypointScorer.fp_by_kind``).
 FP_DISTANCE_EDGES_PX = (4.0, 12.0, 40.0)
@@ -54,6 +67,11 @@ FP_KINDS = ("at rest", "< 4 px", "4-12 px", "12-40 px", "> 40 px")
 #: The kinds of ``KeypointScorer.fn_by_kind``: missed keypoints within the first edge of ``FP_DISTANCE_EDGES_PX``
 #: of their moving instance's outline (inside it), and deeper.
 FN_KINDS = ("silhouette < 4 px", "inside")
+#: Keypoints within this distance (px) of a moving instance's outline, on either side, are left out of
+#: ``KeypointScorer.away_from_outlines`` (module docstring).
+OUTLINE_BAND_PX = 4.0
+#: Bin edges (px a frame) of :func:`recall_by_image_speed`.
+IMAGE_SPEED_EDGES_PX = (0.5, 1.0, 2.0, 4.0, 8.0)
 
 
 @dataclass
@@ -149,6 +167,9 @@ class KeypointScorer:
     fp_by_place: Counter = field(default_factory=Counter)  # (instance id, distance bin) -> false positives
     fp_by_stage: Counter = field(default_factory=Counter)  # stage that flagged them (the table's reason) -> false positives
     fn_by_kind: Counter = field(default_factory=Counter)  # FN_KINDS -> missed keypoints
+    fn_without_depth: int = 0  # missed keypoints where the sensor gave no depth
+    away_from_outlines: KeypointScore = field(default_factory=KeypointScore)  # keypoints beyond OUTLINE_BAND_PX of every moving outline
+    by_instance: dict = field(default_factory=dict)  # (frame index, moving instance id) -> [keypoints on it, judged dynamic]
 
     @property
     def fp_at_rest(self) -> int:
@@ -180,19 +201,38 @@ class KeypointScorer:
             self.per_frame.append(s)
             self.score = self.score + s
             self.moving_instances.update(int(i) for i in (frame.moving_ids or ()))
-            fp = np.asarray(result.dynamic, bool) & ~truth
-            fn = truth & ~np.asarray(result.dynamic, bool)
+            dyn = np.asarray(result.dynamic, bool)
+            uv = np.asarray(result.uv)
+            fp = dyn & ~truth
+            fn = truth & ~dyn
+            inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            outer = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            # each keypoint's distance to the nearest moving outline, from either side (inf without a mover)
+            to_outline = np.where(truth, values_at(inner, uv, outside=0.0),
+                                  values_at(outer, uv, outside=np.inf) if moving.any() else np.inf)
+            away = to_outline > OUTLINE_BAND_PX
+            self.away_from_outlines = self.away_from_outlines + score_keypoints(dyn[away], truth[away])
             if fn.any():
-                inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                edge = values_at(inner, np.asarray(result.uv)[fn], outside=0.0) < FP_DISTANCE_EDGES_PX[0]
+                edge = to_outline[fn] < FP_DISTANCE_EDGES_PX[0]
                 self.fn_by_kind.update({FN_KINDS[0]: int(edge.sum()), FN_KINDS[1]: int((~edge).sum())})
+                table = getattr(result, "table", None)
+                depth = getattr(frame, "depth", None)
+                z = np.asarray(table.depth) if table is not None else depth_at(depth, uv) if depth is not None else None
+                if z is not None:
+                    self.fn_without_depth += int((~(z[fn] > 0)).sum())
+            if truth.any():
+                ids = values_at(frame.instance_mask, uv[truth], outside=0)
+                hit = dyn[truth]
+                k = int(getattr(frame, "index", len(self.per_frame) - 1))
+                for i in np.unique(ids[ids > 0]):
+                    on = ids == i
+                    self.by_instance[(k, int(i))] = [int(on.sum()), int(hit[on].sum())]
             if fp.any():
                 uv_fp = np.asarray(result.uv)[fp]
                 ids = values_at(frame.instance_mask, uv_fp, outside=0)
                 self.fp_by_instance.update(int(i) for i in ids[ids > 0])
                 if moving.any():
-                    dist = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                    d = values_at(dist, uv_fp, outside=np.inf)
+                    d = values_at(outer, uv_fp, outside=np.inf)
                 else:
                     d = np.full(len(uv_fp), np.inf)
                 bins = np.searchsorted(np.asarray(FP_DISTANCE_EDGES_PX), d, side="right")
@@ -200,3 +240,36 @@ class KeypointScorer:
                 table = getattr(result, "table", None)
                 if table is not None:
                     self.fp_by_stage.update(str(r) for r in np.asarray(table.reason)[fp])
+
+
+def recall_by_image_speed(by_instance: dict, coverage: dict[str, np.ndarray], fx: float,
+                          edges=IMAGE_SPEED_EDGES_PX) -> list[dict]:
+    """Recall of the keypoints on moving instances binned by the instance's image speed (module docstring).
+
+    ``by_instance``: :attr:`KeypointScorer.by_instance`; ``coverage``: the sequence's ``coverage.csv``
+    (:func:`~dynslam_lab.datasets.synthetic.read_coverage`; row ``k`` is frame ``k``); ``fx``: the focal length (px).
+    Returns one dict per bin of ``edges`` (px a frame; the first from 0, the last open), in order: ``bin``,
+    ``keypoints``, ``dynamic`` (judged dynamic), ``recall`` (nan when empty) and ``miss_share`` (its share of all
+    misses). An instance or frame missing from ``coverage`` is a ValueError naming it.
+    """
+    ts = np.asarray(coverage["timestamp"], np.float64)
+    dt = float(np.median(np.diff(ts))) if len(ts) > 1 else float("nan")
+    bounds = [0.0, *map(float, edges), np.inf]
+    n = np.zeros(len(bounds) - 1, np.int64)
+    hit = np.zeros_like(n)
+    for (k, i), (count, judged) in by_instance.items():
+        key = f"speed_{i}"
+        if key not in coverage or not 0 <= k < len(ts):
+            raise ValueError(f"recall_by_image_speed: coverage.csv has no {key} for frame {k}")
+        z = float(coverage[f"depth_{i}"][k])
+        px = fx * float(coverage[key][k]) * dt / max(z, 0.1) if np.isfinite(z) else 0.0
+        b = int(np.searchsorted(bounds, px, side="right")) - 1
+        n[b] += count
+        hit[b] += judged
+    misses = max(int((n - hit).sum()), 1)
+    rows = []
+    for b in range(len(n)):
+        label = f"{bounds[b]:g}-{bounds[b + 1]:g}" if np.isfinite(bounds[b + 1]) else f">= {bounds[b]:g}"
+        rows.append({"bin": label, "keypoints": int(n[b]), "dynamic": int(hit[b]),
+                     "recall": hit[b] / n[b] if n[b] else float("nan"), "miss_share": (n[b] - hit[b]) / misses})
+    return rows

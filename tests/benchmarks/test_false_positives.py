@@ -20,6 +20,14 @@ def test_the_table_has_a_row_per_run_with_every_kind(tmp_path, capsys):
     assert set(rows) == {"geometry", "none"}
     none_fp = [int(v.replace(",", "")) for v in rows["none"].group(5).split("|") if v.strip()]
     assert none_fp == [0, 0, 0, 0, 0]  # `none` judges nothing dynamic: no false positive of any kind
+    # the misses without depth and the scores away from the outlines close each row; `none` finds nothing anywhere
+    assert "| FN no depth | P / R away from outlines |" in text
+    assert re.search(r"^\| `boxes_xyz` \| none \|.* \| [\d,]+ \| nan / 0\.00 \|$", text, re.M)
+    # the recall by image speed: one row per run, recall 0 in every bin that holds keypoints for `none`
+    speed = re.findall(r"^\| `boxes_xyz` \| (\w+) \| ((?:[^|]+\|){6})$", text.split("recall by the movers' image speed")[1], re.M)
+    assert {label for label, _ in speed} == {"geometry", "none"}
+    none_cells = [c.strip() for c in dict(speed)["none"].split("|") if c.strip()]
+    assert any(c != "-" for c in none_cells) and all(c == "-" or c.startswith("0.00 (") for c in none_cells)
     assert (tmp_path / "runs" / "boxes_xyz_geometry" / "trajectory.txt").is_file()
 
 

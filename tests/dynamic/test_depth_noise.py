@@ -74,6 +74,25 @@ def test_the_meter_keeps_the_median_of_the_first_frames_and_scales_only_beyond_t
     assert quiet.scale(cfg) == 1.0  # the Kinect's own noise changes nothing
 
 
+def test_a_depth_too_sparse_to_measure_is_tried_on_a_bounded_number_of_frames():
+    cfg = DepthNoiseConfig(frames=3)
+    sparse = np.zeros((480, 640))
+    sparse[:8, :8] = 2.0  # too few readings: every try measures nothing
+    m = DepthNoiseMeter()
+    tried = 0
+    while m.wants(cfg) and tried < 100:
+        m.add(sparse, cfg)
+        tried += 1
+    assert tried == DepthNoiseMeter.ATTEMPTS_PER_FRAME * 3 and m.ratios == [] and m.scale(cfg) == 1.0
+    m.reset()
+    assert m.wants(cfg) and m.attempts == 0  # a new sequence is measured again
+    z = _room()  # a frame that measures, after two that do not, still counts
+    m.add(sparse, cfg)
+    m.add(sparse, cfg)
+    m.add(z, cfg)
+    assert len(m.ratios) == 1 and m.wants(cfg)
+
+
 def test_for_depth_noise_scales_the_noise_margins_and_nothing_else():
     cfg = ScreeningConfig()
     assert cfg.for_depth_noise(1.0) is cfg

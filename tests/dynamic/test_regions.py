@@ -7,6 +7,7 @@ import pytest
 
 from dynslam_lab.dynamic.history import FrameHistory, PastFrame, reduce_depth
 from dynslam_lab.dynamic.regions import (
+    follows_the_mover,
     RegionConfig,
     cells_at,
     continuity_components,
@@ -309,3 +310,39 @@ def test_a_keypoint_on_a_silhouette_takes_the_verdict_of_the_region_cell_at_its_
     assert on_region(region, small2, np.array([2]), c2, np.array([2.0]), 0.04, reach=2)[0]
     with pytest.raises(ValueError, match="edge_cells"):
         RegionConfig(edge_cells=5)
+
+
+def test_a_keypoint_without_depth_is_dynamic_when_its_flow_follows_the_movers_around_it():
+    # three keypoints judged dynamic with depth, moving 5 px to the right since the previous frame (uv_prev = uv - 5)
+    movers = np.array([[100.0, 100.0], [110.0, 100.0], [100.0, 110.0]])
+    cands = np.array([
+        [105.0, 105.0],  # A: moved with them (5 px, 0.2 px off their flow): dynamic
+        [106.0, 104.0],  # B: did not move (0.1 px): static, below min_px
+        [104.0, 106.0],  # C: moved half as far (2.5 px): as far from the movers' flow as from standing still
+        [400.0, 400.0],  # D: moved like them, but no mover within reach
+        [103.0, 103.0],  # E: not matched in the previous frame
+    ])
+    uv = np.vstack([movers, cands])
+    shift = np.array([[-5, 0], [-5, 0], [-5, 0], [-5, -0.2], [-0.1, 0], [-2.5, 0], [-5, 0], [np.nan, np.nan]])
+    uv_prev = uv + shift
+    static_prev = uv.copy()  # a camera at rest: a static point stays where it is
+    dynamic = np.array([True] * 3 + [False] * 5)
+    candidates = np.array([False] * 3 + [True] * 5)
+    out = follows_the_mover(uv, uv_prev, static_prev, candidates, dynamic, reach_px=24.0, min_px=1.0, ratio=0.5)
+    assert out.tolist() == [False] * 3 + [True, False, False, False, False]
+    # the hypotheses by hand for C: 2.5 px from the static prediction, |(-2.5, 0) - (-5, 0)| = 2.5 px from the movers'
+    loose = follows_the_mover(uv, uv_prev, static_prev, candidates, dynamic, 24.0, 1.0, ratio=0.99)
+    assert loose[3] and not loose[5]
+    # a moving camera: the static prediction moves too, and a keypoint that follows it is static
+    static_moving = uv + np.array([-5.0, 0.0])
+    out = follows_the_mover(uv, uv_prev, static_moving, candidates, dynamic, 24.0, 1.0, 0.5)
+    assert not out.any()
+    # fewer moving neighbours than asked: no verdict
+    assert not follows_the_mover(uv, uv_prev, static_prev, candidates, dynamic, 24.0, 1.0, 0.5, min_neighbours=4).any()
+
+
+def test_the_silhouette_parameters_are_checked():
+    with pytest.raises(ValueError, match="silhouette_ratio"):
+        RegionConfig(silhouette_ratio=1.0)
+    with pytest.raises(ValueError, match="silhouette_px"):
+        RegionConfig(silhouette_px=-1.0)

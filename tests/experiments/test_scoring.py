@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from dynslam_lab.experiments.scoring import KeypointScorer
+from dynslam_lab.experiments.scoring import OUTLINE_BAND_PX, KeypointScorer, recall_by_image_speed
 
 
 def _frame(moving):
@@ -75,3 +75,42 @@ def test_misses_are_split_into_the_silhouette_and_the_inside():
     scorer(frame, SimpleNamespace(uv=uv, dynamic=np.array([False, False, False, True, False]), timings_ms={}))
     assert (scorer.score.tp, scorer.score.fn) == (1, 3)
     assert scorer.fn_by_kind == {"silhouette < 4 px": 2, "inside": 1}
+
+
+def test_scores_away_from_the_outlines_misses_without_depth_and_keypoints_per_instance():
+    mask = np.zeros((30, 100), np.int32)
+    mask[:, 20:40] = 1  # a mover, columns 20-39
+    depth = np.full((30, 100), 2.0)
+    depth[:, 19:21] = 0.0  # the sensor loses depth at its left outline
+    # on the mover: 0 px (no depth), 10 px inside, 3 px inside (column 37); on the room: 2 px and 30 px outside
+    uv = np.array([[20.0, 15.0], [29.0, 15.0], [37.0, 15.0], [41.0, 15.0], [70.0, 15.0]])
+    assert OUTLINE_BAND_PX == 4.0
+    scorer = KeypointScorer()
+    frame = SimpleNamespace(instance_mask=mask, moving_ids={1}, instance_classes={}, depth=depth, index=7)
+    # flagged: the inner keypoint, the room keypoint beside the outline and the far room keypoint
+    scorer(frame, SimpleNamespace(uv=uv, dynamic=np.array([False, True, False, True, True]), timings_ms={}))
+    assert (scorer.score.tp, scorer.score.fp, scorer.score.fn) == (1, 2, 2)
+    assert scorer.fn_without_depth == 1  # the miss at column 20 had no depth; the one at 37 had
+    # away from the outlines: only columns 29 (10 px inside) and 70 (30 px outside) count
+    away = scorer.away_from_outlines
+    assert (away.tp, away.fp, away.fn, away.tn) == (1, 1, 0, 0)
+    assert scorer.by_instance == {(7, 1): [3, 1]}
+
+
+def test_recall_by_image_speed_bins_each_instance_by_f_v_dt_over_z():
+    # frames 0-2 at 30 Hz; instance 1 at 2 m moving 0.1 m/s (525 * 0.1 / 30 / 2 = 0.875 px a frame) in frame 1
+    # and 0.8 m/s (7 px) in frame 2; instance 2 unseen (depth nan) in frame 2
+    coverage = {"timestamp": np.array([0.0, 1 / 30, 2 / 30]),
+                "speed_1": np.array([0.0, 0.1, 0.8]), "depth_1": np.array([2.0, 2.0, 2.0]),
+                "speed_2": np.array([0.0, 0.0, 2.0]), "depth_2": np.array([3.0, 3.0, np.nan])}
+    by_instance = {(1, 1): [10, 2], (2, 1): [20, 18], (2, 2): [4, 0]}
+    rows = recall_by_image_speed(by_instance, coverage, fx=525.0)
+    assert [r["bin"] for r in rows] == ["0-0.5", "0.5-1", "1-2", "2-4", "4-8", ">= 8"]
+    got = {r["bin"]: (r["keypoints"], r["dynamic"]) for r in rows if r["keypoints"]}
+    assert got == {"0-0.5": (4, 0), "0.5-1": (10, 2), "4-8": (20, 18)}
+    assert rows[1]["recall"] == 0.2 and np.isnan(rows[2]["recall"])
+    assert rows[1]["miss_share"] == 8 / 14 and rows[0]["miss_share"] == 4 / 14
+    import pytest
+
+    with pytest.raises(ValueError, match="speed_3"):
+        recall_by_image_speed({(0, 3): [1, 0]}, coverage, 525.0)
