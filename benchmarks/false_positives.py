@@ -14,7 +14,7 @@ keypoint precision / recall, the false positives by kind (``FP_KINDS``), the sta
 the misses (false negatives) on the movers' silhouettes and inside them (``FN_KINDS``), the misses without a depth
 reading, and the precision / recall of the keypoints farther than ``OUTLINE_BAND_PX`` (4 px) from every moving
 outline (``KeypointScorer.away_from_outlines``). A second table gives, where the sequence has the renderer's
-``coverage.csv``, the recall by the movers' image speed (``recall_by_image_speed``: px a frame, at most).
+``coverage.csv``, the recall by the movers' image speed (``recall_by_image_speed``: px a frame, roughly).
 docs/robustness.md ("Where the false positives are", "Where the misses are") reads such tables.
 """
 
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
                 speed_rows.append((spec.name, label, rows))
     if speed_rows:
         bins = [row["bin"] for row in speed_rows[0][2]]
-        print(f"\nrecall by the movers' image speed (px a frame, at most; bins {IMAGE_SPEED_EDGES_PX}): recall (keypoints, "
+        print(f"\nrecall by the movers' image speed (px a frame, roughly; bins {IMAGE_SPEED_EDGES_PX}): recall (keypoints, "
               "share of the misses)\n")
         print("| scene | filter | " + " | ".join(bins) + " |")
         print("|---|---|" + "---|" * len(bins))

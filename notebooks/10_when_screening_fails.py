@@ -239,8 +239,8 @@ plt.show()
 # %% [markdown]
 # ### Where the misses are
 #
-# Which moving keypoints does `geometry` miss? `KeypointScorer` splits them three ways: by how fast the mover
-# can have moved in the image since the previous frame (`recall_by_image_speed`: `f v dt / z` px, from the
+# Which moving keypoints does `geometry` miss? `KeypointScorer` splits them three ways: by roughly how far the
+# mover moved in the image since the previous frame (`recall_by_image_speed`: $f v \, dt / z$ px, from the
 # renderer's speed and depth of each box), by whether the sensor gave them a depth, and by the outline. A corner
 # on a mover's outline is made by the mover's edge and the wall behind it: it moves with the mover whichever side
 # its pixel centre lies on, the sensor often gives it no depth, and the truth calls it moving or static by that
@@ -759,7 +759,7 @@ print({name: f"error at frame {len(carried_seq) - 1}: {r['err'][-1]:.0f} mm" for
 table_dir = Path(tempfile.mkdtemp(prefix="nb10_robustness_"))
 df = run_robustness([specs[s] for s in SCENES], table_dir, config=config, loop_closing=False)
 cols = ["sequence", "filter", "room", "camera", "coverage_max", "ate_rmse_m", "ate_vs_reference", "precision", "recall",
-        "tp", "fp", "fn", "lost"]
+        "recall_away", "tp", "fp", "fn", "lost"]
 display(df[cols].round(4))
 display(summarise(df)[["filter", "sequences", "ate_rmse_m worst", "ate_vs_reference worst", "precision worst",
                        "recall worst"]].round(3))

@@ -55,7 +55,7 @@ FILTERS: dict[str, tuple[str, str]] = {
     "oracle masks": ("oracle", "none"),
 }
 #: Measures where a smaller value is worse (the keypoint scores); for every other one a larger value is.
-_LOW_IS_WORSE = ("precision", "recall", "precision_at_rest_ok")
+_LOW_IS_WORSE = ("precision", "recall", "precision_at_rest_ok", "precision_away", "recall_away")
 
 #: Label of the run on the sequence without movers (filter ``none``).
 REFERENCE = "no movers"
@@ -191,9 +191,10 @@ def run_one(seq: TumSequence, run_dir: str | Path, config: Config, filters: str,
     """One SLAM run, scored: ATE, lost frames, loops, keypoint precision/recall, ms per frame.
 
     Returns a dict with ``ate_rmse_m, tracked, lost, frames, keyframes, loops, precision, recall,
-    precision_at_rest_ok, tp, fp, fn, ms_per_frame, screen_ms, run_dir`` (nan where not measured: no
-    ground truth, no truth masks, no screening); ``precision_at_rest_ok`` counts keeping a mover at rest
-    out as right (:mod:`.scoring`). Pass a fresh ``scorer`` to read more of the scores afterwards (its
+    precision_at_rest_ok, precision_away, recall_away, tp, fp, fn, fn_without_depth, ms_per_frame, screen_ms, run_dir``
+    (nan where not measured: no ground truth, no truth masks, no screening); ``precision_at_rest_ok`` counts keeping
+    a mover at rest out as right; ``precision_away`` / ``recall_away`` score only the keypoints beyond 4 px of every
+    moving outline (:mod:`.scoring`). Pass a fresh ``scorer`` to read more of the scores afterwards (its
     split of the false positives, per frame).
     """
     system = build_pipeline(config, seq.camera, detector=detector, filters=filters, loop_closing=loop_closing)
@@ -214,7 +215,9 @@ def run_one(seq: TumSequence, run_dir: str | Path, config: Config, filters: str,
         "precision": _finite(s.precision) if has_truth else float("nan"),
         "recall": _finite(s.recall) if has_truth else float("nan"),
         "precision_at_rest_ok": _finite(scorer.precision_at_rest_ok) if has_truth else float("nan"),
-        "tp": s.tp, "fp": s.fp, "fn": s.fn,
+        "precision_away": _finite(scorer.away_from_outlines.precision) if has_truth else float("nan"),
+        "recall_away": _finite(scorer.away_from_outlines.recall) if has_truth else float("nan"),
+        "tp": s.tp, "fp": s.fp, "fn": s.fn, "fn_without_depth": scorer.fn_without_depth,
         "ms_per_frame": _finite(total),
         "screen_ms": float(np.nanmedian(screen)) if filters != "none" and np.isfinite(screen).any() else float("nan"),
         "run_dir": str(run_dir),
@@ -343,11 +346,11 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     for label, g in df.groupby("filter", sort=False):
         row = {"filter": label, "sequences": len(g)}
         for c in cols_hi:
-            v = pd.to_numeric(g[c], errors="coerce")
+            v = pd.to_numeric(g[c], errors="coerce") if c in g else pd.Series(dtype=float)
             row[f"{c} worst"] = float(v.max()) if v.notna().any() else float("nan")
             row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
-        for c in cols_lo:
-            v = pd.to_numeric(g[c], errors="coerce")
+        for c in cols_lo:  # (tables of runs made before a column was added lack it)
+            v = pd.to_numeric(g[c], errors="coerce") if c in g else pd.Series(dtype=float)
             row[f"{c} worst"] = float(v.min()) if v.notna().any() else float("nan")
             row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
         out.append(row)
@@ -392,8 +395,11 @@ def robustness_markdown(df: pd.DataFrame) -> str:
     summ = summarise(df)
     lines += ["Worst / typical (median) over the sequences. ATE in metres; ratios to `none`, to the same path "
               "without movers, to perfect masks; P / R = keypoint precision / recall; P rest = precision when "
-              "keeping a mover at rest out counts as right (false positives only on things that never move).", ""]
-    head = ["filter", "n", "ATE", "ATE/none", "ATE/no movers", "ATE/oracle", "P", "R", "P rest", "lost", "loops", "ms/frame", "screen ms"]
+              "keeping a mover at rest out counts as right (false positives only on things that never move); P / R "
+              "away = the keypoints beyond 4 px of every moving outline only (a corner on an outline moves with the "
+              "mover on either side of it).", ""]
+    head = ["filter", "n", "ATE", "ATE/none", "ATE/no movers", "ATE/oracle", "P", "R", "P rest", "P away", "R away", "lost",
+            "loops", "ms/frame", "screen ms"]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|---" * len(head) + "|")
     for _, r in summ.iterrows():
@@ -401,7 +407,8 @@ def robustness_markdown(df: pd.DataFrame) -> str:
             return f"{_fmt(r[f'{c} worst'], d)} / {_fmt(r[f'{c} typical'], d)}"
         lines.append("| " + " | ".join([str(r["filter"]), str(r["sequences"]), wt("ate_rmse_m", 4), wt("ate_vs_none", 2),
                                         wt("ate_vs_reference", 2), wt("ate_vs_oracle", 2), wt("precision"), wt("recall"),
-                                        wt("precision_at_rest_ok"), wt("lost", 0), wt("loops", 0), wt("ms_per_frame", 0), wt("screen_ms", 1)]) + " |")
+                                        wt("precision_at_rest_ok"), wt("precision_away"), wt("recall_away"), wt("lost", 0),
+                                        wt("loops", 0), wt("ms_per_frame", 0), wt("screen_ms", 1)]) + " |")
     lines += ["", "## Targets (issue 16)", ""]
     for label, col, bound, text in TARGETS:
         g = df[df["filter"] == label]
@@ -442,7 +449,8 @@ def robustness_markdown(df: pd.DataFrame) -> str:
                                             _fmt(r["recall_median"])]) + " |")
     lines += ["", "## Every run", ""]
     cols = ["sequence", "filter", "room", "camera", "coverage_mean", "coverage_max", "ate_rmse_m", "ate_vs_none",
-            "ate_vs_reference", "precision", "recall", "precision_at_rest_ok", "lost", "loops", "keyframes", "ms_per_frame",
+            "ate_vs_reference", "precision", "recall", "precision_at_rest_ok", "precision_away", "recall_away", "lost",
+            "loops", "keyframes", "ms_per_frame",
             "screen_ms"]
     cols = [c for c in cols if c in df]  # tables of runs made before a column was added
     lines.append("| " + " | ".join(cols) + " |")

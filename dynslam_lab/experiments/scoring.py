@@ -42,8 +42,10 @@ filter does where the truth is not a matter of a pixel. The strict scores stay t
 
 **By the movers' image speed.** ``by_instance`` keeps, per frame and moving instance, the keypoints on it and
 how many were judged dynamic; :func:`recall_by_image_speed` bins them by ``f v dt / z`` (the instance's speed
-``v`` and mean depth ``z`` from the renderer's ``coverage.csv``): how far the mover can have moved in the image
-since the previous frame, at most (a motion along the line of sight moves it less).
+``v`` of its reference point and mean depth ``z`` from the renderer's ``coverage.csv``): roughly how far the mover
+moved in the image since the previous frame (a motion along the line of sight moves it less; a walking person's
+limbs or a swinging door's free edge move more). An instance whose depth the renderer did not record in a frame
+counts as still there.
 """
 
 from __future__ import annotations

@@ -42,6 +42,9 @@ def test_geometry_alone_removes_movers_no_detector_names(runs):
     # ~0.97 (the scorer's split of false positives, dynslam_lab/experiments/scoring.py)
     assert geo["precision_at_rest_ok"] >= max(0.9, geo["precision"])
     assert geo["lost"] == 0
+    # the scores beyond 4 px of the moving outlines, and the misses without depth, reach the table
+    assert none["recall_away"] == 0.0 and geo["recall_away"] >= 0.3
+    assert 0 <= geo["fn_without_depth"] <= geo["fn"]
 
 
 @pytest.mark.slow

@@ -85,3 +85,18 @@ def test_markdown_names_a_path_without_movers_that_does_not_track():
     md = robustness_markdown(_derived(pd.concat([df.assign(frames=240), ref], ignore_index=True)))
     assert "the same path without movers lost more than 50% of its frames on: a (" in md
     assert "on: a, c" not in md
+
+
+def test_markdown_shows_the_scores_away_from_the_outlines_and_takes_tables_without_them():
+    df = _rows()
+    df["precision_away"] = [0.9, 0.5, 0.95, 0.85]
+    df["recall_away"] = [0.8, 0.6, 0.7, 0.9]
+    md = robustness_markdown(df)
+    head = next(line for line in md.splitlines() if line.startswith("| filter | n |"))
+    assert "| P rest | P away | R away |" in head
+    row = next(line for line in md.splitlines() if line.startswith("| geometry | 4 |"))
+    # worst / typical by hand: precision_away min 0.5, median 0.875; recall_away min 0.6, median 0.75
+    assert "| 0.500 / 0.875 | 0.600 / 0.750 |" in row
+    old = robustness_markdown(_rows())  # rows of runs made before the columns existed
+    row = next(line for line in old.splitlines() if line.startswith("| geometry | 4 |"))
+    assert "| - / - | - / - |" in row
