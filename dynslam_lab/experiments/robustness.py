@@ -345,13 +345,10 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     out = []
     for label, g in df.groupby("filter", sort=False):
         row = {"filter": label, "sequences": len(g)}
-        for c in cols_hi:
+        for c in cols_hi + cols_lo:  # (tables of runs made before a column was added lack it)
             v = pd.to_numeric(g[c], errors="coerce") if c in g else pd.Series(dtype=float)
-            row[f"{c} worst"] = float(v.max()) if v.notna().any() else float("nan")
-            row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
-        for c in cols_lo:  # (tables of runs made before a column was added lack it)
-            v = pd.to_numeric(g[c], errors="coerce") if c in g else pd.Series(dtype=float)
-            row[f"{c} worst"] = float(v.min()) if v.notna().any() else float("nan")
+            worst = v.min() if c in cols_lo else v.max()
+            row[f"{c} worst"] = float(worst) if v.notna().any() else float("nan")
             row[f"{c} typical"] = float(v.median()) if v.notna().any() else float("nan")
         out.append(row)
     return pd.DataFrame(out)

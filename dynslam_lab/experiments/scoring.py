@@ -205,6 +205,7 @@ class KeypointScorer:
             self.moving_instances.update(int(i) for i in (frame.moving_ids or ()))
             dyn = np.asarray(result.dynamic, bool)
             uv = np.asarray(result.uv)
+            table = getattr(result, "table", None)
             fp = dyn & ~truth
             fn = truth & ~dyn
             inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
@@ -217,7 +218,6 @@ class KeypointScorer:
             if fn.any():
                 edge = to_outline[fn] < FP_DISTANCE_EDGES_PX[0]
                 self.fn_by_kind.update({FN_KINDS[0]: int(edge.sum()), FN_KINDS[1]: int((~edge).sum())})
-                table = getattr(result, "table", None)
                 depth = getattr(frame, "depth", None)
                 z = np.asarray(table.depth) if table is not None else depth_at(depth, uv) if depth is not None else None
                 if z is not None:
@@ -230,16 +230,11 @@ class KeypointScorer:
                     on = ids == i
                     self.by_instance[(k, int(i))] = [int(on.sum()), int(hit[on].sum())]
             if fp.any():
-                uv_fp = np.asarray(result.uv)[fp]
-                ids = values_at(frame.instance_mask, uv_fp, outside=0)
+                ids = values_at(frame.instance_mask, uv[fp], outside=0)
                 self.fp_by_instance.update(int(i) for i in ids[ids > 0])
-                if moving.any():
-                    d = values_at(outer, uv_fp, outside=np.inf)
-                else:
-                    d = np.full(len(uv_fp), np.inf)
-                bins = np.searchsorted(np.asarray(FP_DISTANCE_EDGES_PX), d, side="right")
+                # a false positive is off the truth's mask: its distance to the outline is from outside (inf alone)
+                bins = np.searchsorted(np.asarray(FP_DISTANCE_EDGES_PX), to_outline[fp], side="right")
                 self.fp_by_place.update(zip((int(i) for i in ids), (int(b) for b in bins)))
-                table = getattr(result, "table", None)
                 if table is not None:
                     self.fp_by_stage.update(str(r) for r in np.asarray(table.reason)[fp])
 
