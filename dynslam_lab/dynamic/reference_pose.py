@@ -34,7 +34,9 @@ and the fallbacks are ours):
    moved from a close box that moved while the rest of the map is far: the far background
    barely resists. So every surface of the frame holding enough matches (a connected piece of
    the depth image without depth steps or creases, :func:`~dynslam_lab.dynamic.regions.surface_segments`)
-   is left out in turn and the pose refined on the others; a surface whose matches then miss
+   is left out in turn and the pose moved to the others' (one Gauss-Newton step from the pose of all
+   matches on their normal equations less the surface's: its influence on the pose, to first order;
+   ``leave_out_influence``); a surface whose matches then miss
    their map points by much more than the others do has moved (a box mapped while it stood
    still and now pushed away). With two such groups the evidence is symmetric (the box moved,
    or everything else did): a surface with less than half the matches is the mover (the static
@@ -67,7 +69,7 @@ from ..geometry.depth_alignment import ReprojectionTerm
 from ..geometry.projection import projection_jacobian
 from .room_depth import RoomDepth, align_room
 
-__all__ = ["ReferencePoseConfig", "ReferencePose", "match_map_points", "refine_pose", "inconsistent_surfaces", "moving_surfaces",
+__all__ = ["ReferencePoseConfig", "ReferencePose", "LeaveOneOut", "match_map_points", "refine_pose", "inconsistent_surfaces", "moving_surfaces",
            "depth_moved_surfaces", "map_reference_pose"]
 
 
@@ -107,6 +109,7 @@ class ReferencePoseConfig:
     room_depth_min_matches: int = 5  # ... a surface off the room whose matches (at least this many) miss the aligned pose moved; ours
     room_depth_miss: float = 3.0  # ... by more than this (sigma units; and segment_ratio times the room's own median) ...; ours
     room_depth_pull: float = 1.5  # ... and this many times more than they miss the feature pose (the surface pulled it; a surface whose map points miss both alike is no evidence); ours
+    leave_out_influence: bool = True  # step 3b: a surface left out moves the pose by one Gauss-Newton step from the pose of all matches, on their normal equations less the surface's (an influence step; the normal equations built once a round); False = four reweighted Gauss-Newton steps on the rest (before 2026-12-07); ours (docs/speed.md "Leaving a surface out in one step")
     max_correction_m: float = 0.05  # a refinement moving the camera more than this from the prediction is distrusted (m); ours
     max_correction_deg: float = 3.0  # ... or turning it more than this (degrees); ours
 
@@ -265,6 +268,51 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     return Jw @ J.T, Jw @ r
 
 
+class LeaveOneOut:
+    """The pose of all matches ``use`` but one surface's, as one Gauss-Newton step from ``T_c_w`` (the pose of all of
+    them) on the normal equations of all the matches less those of the surface: the influence of the surface on the
+    pose, to first order. The Cauchy weights (scale ``s``, residuals in units of ``sigma``) are those of ``T_c_w``;
+    the normal equations of all matches are built once and each surface's own are a product over its columns of
+    the Jacobian (:func:`_gauss_newton_step`'s layout)."""
+
+    def __init__(self, T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
+                 use: np.ndarray, s: float) -> None:
+        self.T = T_c_w
+        idx = np.flatnonzero(use)
+        X = T_c_w[:3, :3] @ X_w[idx].T
+        X += T_c_w[:3, 3:]
+        front = X[2] > 1e-6
+        idx, X = idx[front], X[:, front]
+        self.m = m = len(idx)
+        self.J, xz, yz = projection_jacobian(X, K)
+        r = np.empty(2 * m)
+        np.subtract(uv[idx, 0], K[0, 0] * xz + K[0, 2], out=r[:m])
+        np.subtract(uv[idx, 1], K[1, 1] * yz + K[1, 2], out=r[m:])
+        isg2 = 1.0 / np.asarray(sigma[idx], np.float64) ** 2
+        w = isg2 / (1.0 + (r[:m] ** 2 + r[m:] ** 2) * isg2 / (s * s))
+        self.Jw = self.J * np.concatenate([w, w])
+        self.r = r
+        self.H, self.g = self.Jw @ self.J.T, self.Jw @ r
+        self.column = np.full(len(X_w), -1)
+        self.column[idx] = np.arange(m)
+
+    def pose_without(self, on: np.ndarray) -> np.ndarray:
+        c = self.column[on]
+        c = c[c >= 0]
+        if self.m - len(c) < 6:
+            return self.T
+        cols = np.concatenate([c, c + self.m])
+        Jw = self.Jw[:, cols]
+        try:
+            delta = np.linalg.solve(self.H - Jw @ self.J[:, cols].T + 1e-9 * np.eye(6), self.g - Jw @ self.r[cols])
+        except np.linalg.LinAlgError:
+            return self.T
+        dT = np.eye(4)
+        dT[:3, :3] = cv2.Rodrigues(delta[:3])[0]
+        dT[:3, 3] = delta[3:]
+        return dT @ self.T
+
+
 def _pixel_spread(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
                   fixed: np.ndarray, judged: np.ndarray) -> float:
     """How well the matches ``fixed`` alone fix the pixels of the matches ``judged``: the median over ``judged``
@@ -349,8 +397,10 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
     """Step 3b: the matches on surfaces that move against the rest of the map.
 
     Each surface (``labels (M,)``, 0 = none) with at least ``segment_min_matches`` matches, leaving at
-    least ``segment_min_matches`` others, is left out in turn and the pose refined on the others (from
-    ``T_c_w``, on the matches ``use``). The surface is inconsistent when its median error (in units of
+    least ``segment_min_matches`` others, is left out in turn and the pose moved to the others' (from
+    ``T_c_w``, on the matches ``use``: with ``leave_out_influence``, the default, one Gauss-Newton step on the
+    normal equations of all of them less the surface's, :class:`LeaveOneOut`; else four reweighted steps on the
+    rest). The surface is inconsistent when its median error (in units of
     ``sigma``) under that pose exceeds both ``segment_min_px`` and ``segment_ratio`` times the median of
     the others. With ``segment_joint_ratio > 0`` (off by default) the two groups must also disagree under
     ``T_c_w`` itself (the pose of all matches): the surface
@@ -403,6 +453,7 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
         best, best_key, best_T, best_fit = None, None, None, None
         e_T = None  # errors under T, needed by the consistency checks only
         gap_with = _pose_gap_px(T, T_pred, X_w[use], K) if T_pred is not None else None
+        leave_out = None  # the normal equations of all matches under T, built for the first surface that needs them
         for lab, count in zip(cand, counts[np.isin(labs, cand)]):
             on = (labels == lab) & use
             rest = use & ~on
@@ -417,6 +468,10 @@ def moving_surfaces(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.nd
             dominant = fit is not None
             if dominant:
                 T_l = refine_pose(T, X_w[fit], uv[fit], K, (8.0, *config.scales_px), iterations=5, sigma=sigma[fit])
+            elif config.leave_out_influence:
+                if leave_out is None:
+                    leave_out = LeaveOneOut(T, X_w, uv, K, sigma, use, config.scales_px[-2])
+                T_l = leave_out.pose_without(on)
             else:
                 T_l = refine_pose(T, X_w[rest], uv[rest], K, config.scales_px[-2:], iterations=2, sigma=sigma[rest])
             e = _reprojection_px(T_l, X_w, uv, K) / sigma

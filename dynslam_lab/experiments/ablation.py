@@ -70,7 +70,7 @@ def run_ablation(
     Returns
     -------
     DataFrame with columns ``sequence, filter, ate_rmse_m, improvement_pct, precision, recall,
-    tracked, lost, frames, loops, screen_median_ms, run_dir`` (each run by
+    precision_away, recall_away, fn_without_depth, tracked, lost, frames, loops, screen_median_ms, run_dir`` (each run by
     :func:`dynslam_lab.experiments.robustness.run_one`, as the robustness benchmark does).
     """
     if isinstance(seqdirs, (str, Path)):
@@ -106,6 +106,9 @@ def run_ablation(
                 "ate_rmse_m": r["ate_rmse_m"],
                 "precision": r["precision"] if truth else float("nan"),
                 "recall": r["recall"] if truth else float("nan"),
+                "precision_away": r["precision_away"] if truth else float("nan"),
+                "recall_away": r["recall_away"] if truth else float("nan"),
+                "fn_without_depth": r["fn_without_depth"] if truth else float("nan"),
                 "tracked": r["tracked"],
                 "lost": r["lost"],
                 "frames": r["frames"],
@@ -120,8 +123,8 @@ def run_ablation(
             100.0 * (base[s] - a) / base[s] if s in base.index and base[s] > 0 else float("nan")
             for s, a in zip(df["sequence"], df["ate_rmse_m"])
         ]
-        cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "tracked", "lost",
-                "frames", "loops", "screen_median_ms", "run_dir"]
+        cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "precision_away",
+                "recall_away", "fn_without_depth", "tracked", "lost", "frames", "loops", "screen_median_ms", "run_dir"]
         df = df[cols]
     atomic_write(outdir / "ablation.csv", lambda tmp: df.to_csv(tmp, index=False))
     atomic_write(outdir / "ablation.md", lambda tmp: tmp.write_text(ablation_markdown(df)))
@@ -140,6 +143,10 @@ def _fmt(v, digits=4) -> str:
     if isinstance(v, float):
         return "-" if not math.isfinite(v) else f"{v:.{digits}f}"
     return str(v)
+
+
+def _count(v) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else str(int(v))
 
 
 def ablation_markdown(df) -> str:
@@ -163,13 +170,17 @@ def ablation_markdown(df) -> str:
             imp = r["improvement_pct"]
             cells.append(_fmt(r["ate_rmse_m"]) + ("" if f == "none" or not math.isfinite(imp) else f" ({imp:+.1f}%)"))
         lines.append(f"| {f} | " + " | ".join(cells) + " |")
-    lines += ["", "Per-keypoint precision / recall of the dynamic verdict against the synthetic truth, "
-              "tracking, and screening time (median ms per frame).", ""]
-    cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "tracked", "lost", "frames",
-            "screen_median_ms"]
-    lines.append("| " + " | ".join(cols) + " |")
+    lines += ["", "Per-keypoint precision / recall of the dynamic verdict against the synthetic truth (`P away` / "
+              "`R away`: only the keypoints beyond 4 px of every moving outline; `FN no depth`: the misses without "
+              "depth), tracking, and screening time (median ms per frame).", ""]
+    cols = ["sequence", "filter", "ate_rmse_m", "improvement_pct", "precision", "recall", "precision_away",
+            "recall_away", "fn_without_depth", "tracked", "lost", "frames", "screen_median_ms"]
+    heads = {"precision_away": "P away", "recall_away": "R away", "fn_without_depth": "FN no depth"}
+    cols = [c for c in cols if c in df]  # tables written before a column existed still render
+    lines.append("| " + " | ".join(heads.get(c, c) for c in cols) + " |")
     lines.append("|---" * len(cols) + "|")
     for _, r in df.iterrows():
-        cells = [_fmt(r[c], 1 if c in ("improvement_pct", "screen_median_ms") else 3) for c in cols]
+        cells = [_count(r[c]) if c == "fn_without_depth" else _fmt(r[c], 1 if c in ("improvement_pct", "screen_median_ms") else 3)
+                 for c in cols]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -12,7 +12,9 @@ Per frame::
 
 Map initialisation (ORB-SLAM2 ``StereoInitialization``): the first frame with at least
 ``init_min_points`` static keypoints with depth becomes keyframe 0 at the world origin and every
-such keypoint a map point.
+such keypoint a map point. A frame of weak texture, with fewer than ``init_min_points`` keypoints with
+depth in all, starts the map with ``init_weak_min_points`` static ones (ours: ORB-SLAM2 never starts
+there; the dense term of tracking carries the plain room).
 
 Every tracked frame's pose is stored relative to its reference keyframe, ``T_ref_c``, so that
 keyframe corrections (local BA, loop closing) reach the trajectory: ``T_w_c = T_w_ref T_ref_c``.
@@ -465,8 +467,11 @@ class System:
             db.add(kf.id, bow)
 
     def _initialize(self, sf: SlamFrame, frame: Frame) -> bool:
-        n = int((sf.static & np.isfinite(sf.depth)).sum())
-        if n < self.config.tracking.init_min_points:
+        cfg = self.config.tracking
+        has_depth = np.isfinite(sf.depth)
+        n = int((sf.static & has_depth).sum())
+        weak = 0 < cfg.init_weak_min_points <= n and int(has_depth.sum()) < cfg.init_min_points
+        if n < cfg.init_min_points and not weak:
             return False
         sf.T_w_c = np.eye(4)
         kf, _ = self._new_keyframe(sf, frame, all_points=True)

@@ -121,6 +121,7 @@ class TrackingConfig:
     min_depth: float = 0.1  # keypoint depths below this are missing (m); ours (sensor minimum)
     max_depth: float = 8.0  # keypoint depths above this are missing (m); ours (Kinect range)
     init_min_points: int = 500  # keypoints with depth needed to start the map; ORB-SLAM2: 500
+    init_weak_min_points: int = 50  # a frame with fewer than init_min_points keypoints with depth in all (weak texture: it cannot offer more) starts the map with this many static ones (the dense term tracks the plain room); 0 = off (ORB-SLAM2: the map never starts there); ours, docs/tracking.md "Starting the map in a room of weak texture"
     velocity_per_second: bool = True  # scale the constant-velocity motion by the ratio of the frame intervals (dt / dt_last): frames 30 and 40 ms apart (the synthetic sequences, TUM's jitter) are not predicted one step each; False = ORB-SLAM2 (one step per frame); ours, docs/tracking.md "Motion model in time"
     motion_radius: float = 15.0  # motion-model search radius at level 0 (px); ORB-SLAM2 RGB-D th: 15
     motion_min_matches: int = 20  # matches needed before optimising (else radius x2); ORB-SLAM2: 20
@@ -242,7 +243,7 @@ class TrackingConfig:
                         "dense_model_keyframes", "dense_model_stride", "dense_smooth_px")
         if not 0 <= self.static_scene_max_dynamic <= 1:
             raise ValueError(f"TrackingConfig.static_scene_max_dynamic must be in [0, 1], got {self.static_scene_max_dynamic}")
-        non_negative = ("min_depth", "static_scene_frames", "init_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
+        non_negative = ("min_depth", "static_scene_frames", "init_min_points", "init_weak_min_points", "motion_min_matches", "local_neighbours", "min_local_inliers",
                         "min_local_inliers_reloc", "reloc_min_matches", "kf_min_frames", "kf_min_inliers", "suspect_trusted_inliers",
                         "kf_close_tracked", "kf_close_untracked", "kf_new_points_min", "dense_below_inliers",
                         "dense_min_inliers", "dense_max_keypoints", "joint_position_sigma", "joint_rotation_deg")

@@ -24,8 +24,9 @@ def test_demo_writes_the_ablation_table(tmp_path, capsys):
     oracle = df.set_index("filter").loc["oracle"]
     # perfect masks: never a static keypoint flagged, never a mover's missed; with the budget outside the masks
     # (orb.truth_region_share = 0, docs/robustness.md "ORB budget") there may be no keypoint on a mover at all (nan)
-    for score in (oracle["precision"], oracle["recall"]):
+    for score in (oracle["precision"], oracle["recall"], oracle["precision_away"], oracle["recall_away"]):
         assert np.isnan(score) or score == 1.0
+    assert none["recall_away"] == 0.0 and oracle["fn_without_depth"] == 0  # none flags nothing; masks miss nothing
     full = df.set_index("filter").loc["full"]
     # precision counts the keypoints that exist: with the budget prior (orb.prior_region_share 0.25, docs/robustness.md
     # "ORB budget") the people keep a quarter of their keypoints while the flagged static ones near them stay:
@@ -40,7 +41,7 @@ def test_demo_writes_the_ablation_table(tmp_path, capsys):
     expect = 100 * (none["ate_rmse_m"] - full["ate_rmse_m"]) / none["ate_rmse_m"]
     assert full["improvement_pct"] == pytest.approx(expect)
     md = (out / "ablation.md").read_text()
-    assert "| filter |" in md and "| full |" in md
+    assert "| filter |" in md and "| full |" in md and "| P away | R away | FN no depth |" in md
     assert "ATE RMSE" in capsys.readouterr().out
     for f in df["filter"]:
         assert (out / df["sequence"][0] / f / "trajectory.txt").is_file()

@@ -62,7 +62,8 @@ def test_the_screener_runs_with_the_configuration_of_the_frame_width_and_follows
 def test_geometry_keeps_the_pose_on_half_size_images(tmp_path):
     """``walking_xyz`` at 320x240 (60 frames, no loop closing): the people walk ~4 px a frame there, inside the 6 px
     gate of the reference pose set for 640 px, where the pose follows them from the first frame (ATE 0.138 m when
-    measured); with the extents scaled to the image it stays on the room (0.028 m)."""
+    measured; 0.036 m since step 3b leaves a surface out in one Gauss-Newton step, which holds the room better);
+    with the extents scaled to the image it stays on the room (0.028 m)."""
     from dynslam_lab.config import Config
     from dynslam_lab.datasets.camera_effects import CameraEffects, apply_camera_effects
     from dynslam_lab.datasets.synthetic import synthetic_sequence
@@ -84,4 +85,4 @@ def test_geometry_keeps_the_pose_on_half_size_images(tmp_path):
         recorded = summary["config"]["screening"]  # what the stages ran with, at this image's width
         assert recorded["multiframe"]["factor"] == (2 if width else 4)
         assert recorded["reference"]["gate_px"] == (3.0 if width else 6.0)
-    assert ate[640] < 0.05 and ate[640] < 0.4 * ate[0], ate
+    assert ate[640] < 0.05 and ate[640] < ate[0], ate
