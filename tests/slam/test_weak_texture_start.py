@@ -59,7 +59,6 @@ def test_a_plain_room_starts_with_the_weak_texture_rule_and_tracks_every_frame(p
     assert not system.lost_frames
     ate = compute_ate(plain_room.groundtruth, system.trajectory(), align="se3")
     assert ate.stats.n == N
-    # measured 22 mm RMSE, worst frame 46 mm: the plain walls leave the pose noisy (the dense term's jitter along
-    # the line where wall and floor meet), but it follows the renderer's path
+    # measured 22 mm RMSE, worst frame 46 mm: the plain walls leave the pose noisy, but it follows the renderer's path
     assert ate.stats.rmse <= 0.04, ate.stats.rmse
     assert ate.stats.max <= 0.08, ate.stats.max
