@@ -750,7 +750,7 @@ print({name: f"error at frame {len(carried_seq) - 1}: {r['err'][-1]:.0f} mm" for
 # ## 4f. Leaving a surface out: four Gauss-Newton steps, or one
 #
 # Step 3b asks, for every surface, where the pose of all the *other* matches lies. Refining it on the rest costs
-# four reweighted Gauss-Newton steps per surface. The pose of all matches, $T$, is already their optimum, so the
+# four reweighted Gauss-Newton steps per surface. The pose of all matches, $T$, is (nearly) their optimum, so the
 # pose without surface $s$ is, to first order, one step from it on the normal equations of all matches less the
 # surface's own:
 #
