@@ -244,12 +244,19 @@ def refine_pose(T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarra
 
 def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: np.ndarray, s: float):
     """The normal equations ``(H (6, 6), g (6,))`` of one reweighted Gauss-Newton step of :func:`refine_pose`
-    at the camera points ``X (3, M)`` (in front of the camera) observed at ``qt (2, M)`` px.
+    at the camera points ``X (3, M)`` (in front of the camera) observed at ``qt (2, M)`` px
+    (:func:`_weighted_jacobian`)."""
+    J, Jw, r = _weighted_jacobian(X, qt, inv_sigma, K, s)
+    return Jw @ J.T, Jw @ r
+
+
+def _weighted_jacobian(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: np.ndarray, s: float):
+    """``(J, J W, r)`` at the camera points ``X (3, M)`` observed at ``qt (2, M)`` px.
 
     The Jacobian of ``(u, v)`` for a left perturbation ``(omega, v)`` of the camera-frame point is laid out
     as one ``(6, 2M)`` matrix (the ``u`` rows of every point, then the ``v`` rows), so that
     ``H = J W J^T`` and ``g = J W r`` are two matrix products, ``W`` holding each row's Cauchy weight
-    ``sigma^-2 / (1 + |r / sigma|^2 / s^2)``.
+    ``sigma^-2 / (1 + |r / sigma|^2 / s^2)``; ``r (2M,)`` the residuals in px, laid out as ``J``'s columns.
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     m = X.shape[1]
@@ -264,8 +271,7 @@ def _gauss_newton_step(X: np.ndarray, qt: np.ndarray, inv_sigma: np.ndarray, K: 
     q *= 1.0 / (s * s)
     q += 1.0
     w = isg2 / q
-    Jw = J * np.concatenate([w, w])
-    return Jw @ J.T, Jw @ r
+    return J, J * np.concatenate([w, w]), r
 
 
 class LeaveOneOut:
@@ -273,7 +279,7 @@ class LeaveOneOut:
     them) on the normal equations of all the matches less those of the surface: the influence of the surface on the
     pose, to first order. The Cauchy weights (scale ``s``, residuals in units of ``sigma``) are those of ``T_c_w``;
     the normal equations of all matches are built once and each surface's own are a product over its columns of
-    the Jacobian (:func:`_gauss_newton_step`'s layout)."""
+    the Jacobian (:func:`_weighted_jacobian`, as in :func:`refine_pose`)."""
 
     def __init__(self, T_c_w: np.ndarray, X_w: np.ndarray, uv: np.ndarray, K: np.ndarray, sigma: np.ndarray,
                  use: np.ndarray, s: float) -> None:
@@ -283,18 +289,11 @@ class LeaveOneOut:
         X += T_c_w[:3, 3:]
         front = X[2] > 1e-6
         idx, X = idx[front], X[:, front]
-        self.m = m = len(idx)
-        self.J, xz, yz = projection_jacobian(X, K)
-        r = np.empty(2 * m)
-        np.subtract(uv[idx, 0], K[0, 0] * xz + K[0, 2], out=r[:m])
-        np.subtract(uv[idx, 1], K[1, 1] * yz + K[1, 2], out=r[m:])
-        isg2 = 1.0 / np.asarray(sigma[idx], np.float64) ** 2
-        w = isg2 / (1.0 + (r[:m] ** 2 + r[m:] ** 2) * isg2 / (s * s))
-        self.Jw = self.J * np.concatenate([w, w])
-        self.r = r
-        self.H, self.g = self.Jw @ self.J.T, self.Jw @ r
+        self.m = len(idx)
+        self.J, self.Jw, self.r = _weighted_jacobian(X, np.asarray(uv, np.float64)[idx].T, 1.0 / np.asarray(sigma[idx], np.float64), K, s)
+        self.H, self.g = self.Jw @ self.J.T, self.Jw @ self.r
         self.column = np.full(len(X_w), -1)
-        self.column[idx] = np.arange(m)
+        self.column[idx] = np.arange(self.m)
 
     def pose_without(self, on: np.ndarray) -> np.ndarray:
         c = self.column[on]

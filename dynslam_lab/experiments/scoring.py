@@ -208,11 +208,13 @@ class KeypointScorer:
             table = getattr(result, "table", None)
             fp = dyn & ~truth
             fn = truth & ~dyn
-            inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            outer = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
             # each keypoint's distance to the nearest moving outline, from either side (inf without a mover)
-            to_outline = np.where(truth, values_at(inner, uv, outside=0.0),
-                                  values_at(outer, uv, outside=np.inf) if moving.any() else np.inf)
+            if moving.any():
+                inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                outer = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                to_outline = np.where(truth, values_at(inner, uv, outside=0.0), values_at(outer, uv, outside=np.inf))
+            else:
+                to_outline = np.full(len(uv), np.inf)
             away = to_outline > OUTLINE_BAND_PX
             self.away_from_outlines = self.away_from_outlines + score_keypoints(dyn[away], truth[away])
             if fn.any():
