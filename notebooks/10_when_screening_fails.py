@@ -692,14 +692,13 @@ print({name: f"largest error {np.nanmax(r['err']):.0f} mm, frames tracked by dep
        for name, r in MASK_RUNS.items()})
 
 # %% [markdown]
-# **What to look for**: before frame ~140 the three runs are close. Over the plain wall (frames 145-185,
-# black dots) the runs with movers are tracked by depth and drift: the tinted region is the oracle's mask,
-# and at frame 165 the cart and the person pushing it fill a third of the view with a few dozen keypoints
-# between them. With the cart's depth in the term the error climbs to about 0.5 m by frame 183; with the
-# region left out it stays near 0.2 m, as high as the run without movers ever gets (that run leaves the
-# depth term after 16 frames and is back near 1 cm by frame 165). Over the whole 240-frame sequence
-# (`docs/tracking.md`, "Dense term"): ATE 111 mm with the cart's depth, 22 mm without it, 15 mm on the
-# path without movers.
+# **What to look for**: before frame ~140 the three runs are close. Over the plain wall (frames ~145-185,
+# black dots) they are tracked by depth: the tinted region is the oracle's mask, and at frame 165 the cart and
+# the person pushing it fill a third of the view with a few dozen keypoints between them. With the cart's depth
+# in the term the error climbs to ~0.36 m by frame 165 and ~0.9 m by frame 183; with the region left out it peaks
+# near 0.1 m (97 mm at frame 179) and is back to ~15 mm once the wall is passed, as the run without movers is
+# (its largest error 71 mm, at the same frame; tracked by depth on 20 frames). The printed line above has the
+# largest errors and the frames tracked by depth of each run.
 
 # %% [markdown]
 # ## 4e. A plain room is not the moving minority (step 3b, by area)
@@ -874,11 +873,12 @@ plt.close(fig)
 
 # %% [markdown]
 # **What to look for**: without screening the tracker follows the movers: on `cart_static` (the camera
-# stands still, a cart rolls past and a person pushes another) the error is about half a metre, on
-# `boxes_xyz` several centimetres. `geometry` brings both within a factor of about 2 of the dashed
-# line, the same path without movers, and of the perfect masks: the reference pose and the multi-frame
-# test need no detector. `full+oracle` matches `geometry` on `boxes_xyz` (nothing for its detector to
-# name) and is slightly better on `cart_static`, where the pushing person is a COCO `person`. The
+# stands still, a cart rolls past and a person pushes another) the error is about 4.5 cm over these 90
+# frames, on `boxes_xyz` about 2 cm. `geometry` brings both to a few millimetres, within a factor of about 2
+# of the dashed line, the same path without movers, and of the perfect masks: the reference pose and the
+# multi-frame test need no detector. `full+oracle` matches `geometry` on both to the tenth of a millimetre:
+# nothing on `boxes_xyz` for its detector to name, and on `cart_static` the geometry already finds the
+# pushing person whom the detector names a COCO `person`. The
 # table's recall column says what the ATE hides: even the best filter misses part of the movers (the
 # receding box), and still tracks well, because the map, not the frame, decides the pose. Two scenes
 # and one seed are a sketch: the benchmark's table gives the worst case beside the typical one over

@@ -362,7 +362,9 @@ class ImageLevel:
     """A grey image reduced by ``scale`` (an integer: 2 = half size, area average) for the photometric term: the
     image ``I (h, w)`` float32, its gradients ``gx, gy`` (grey levels per pixel of this level, Sobel / 8), its
     depth ``z (h, w)`` (m, nan where a block of the full-resolution depth is missing or spans a depth edge)
-    and the camera of the level."""
+    and the camera of the level. ``invalid (h, w)`` bool (None: none): pixels whose intensity is no evidence
+    as a *reference* (what the screening judged dynamic in that image): a frame's sample that lands on one is
+    left out of the photometric term (:meth:`PhotometricTerm.evaluate`)."""
 
     I: np.ndarray
     gx: np.ndarray
@@ -370,6 +372,7 @@ class ImageLevel:
     z: np.ndarray
     camera: PinholeCamera
     scale: int
+    invalid: np.ndarray | None = None
 
 
 def image_level(gray: np.ndarray, depth: np.ndarray, camera: PinholeCamera, scale: int,
@@ -441,6 +444,13 @@ class PhotometricTerm:
         cam, h, w = self.ref.camera, self.ref.I.shape[0], self.ref.I.shape[1]
         R_rc, Y, u, v, front = _to_reference(self.X, self.T_r_w, R, t, cam)
         idx = np.flatnonzero(front & (u >= 0) & (u <= w - 2) & (v >= 0) & (v <= h - 2))
+        if self.ref.invalid is not None and len(idx):
+            # a sample whose bilinear footprint touches a pixel the reference's screening judged dynamic: a
+            # mover there, not the static scene the sample saw
+            inv = self.ref.invalid
+            iu, iv = u[idx].astype(np.int64), v[idx].astype(np.int64)
+            bad = inv[iv, iu] | inv[iv, iu + 1] | inv[iv + 1, iu] | inv[iv + 1, iu + 1]
+            idx = idx[~bad]
         if len(idx) == 0:
             return idx, np.zeros(0), np.zeros((0, 6))
         maps = (u[idx].astype(np.float32).reshape(-1, 1), v[idx].astype(np.float32).reshape(-1, 1))

@@ -77,11 +77,12 @@ from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from scipy.sparse.linalg import spsolve
 
 from ..camera import PinholeCamera
-from ..geometry.se3 import nearest_rotation, skew
+from ..geometry.se3 import nearest_rotation, skew, so3_log
 
 __all__ = [
     "pose_information",
     "pose_uncertainty",
+    "pose_step_mahalanobis",
     "CHI2_2DOF",
     "CHI2_3DOF",
     "Observations",
@@ -539,6 +540,21 @@ def pose_uncertainty(T_c_w: np.ndarray, X_w: np.ndarray, obs: Observations, came
     sigma_c = np.sqrt(max(float(np.linalg.eigvalsh(cov_c)[-1]), 0.0))
     sigma_r = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(C[:3, :3])[-1]), 0.0)))
     return float(sigma_c), float(sigma_r)
+
+
+def pose_step_mahalanobis(T_from: np.ndarray, T_to: np.ndarray, X_w: np.ndarray, obs: Observations,
+                          camera: PinholeCamera, bf: float) -> float:
+    """``d^2 = xi^T H xi``: the squared Mahalanobis length of the step ``xi = (omega, tau)`` from the pose ``T_from``
+    to ``T_to`` (both ``T_c_w``; ``R_to = Exp(omega) R_from``, ``t_to = t_from + tau``) under the Gauss-Newton
+    information ``H`` of the observations at ``T_from`` (:func:`pose_information`, one pixel a unit). To second
+    order it is what the step adds to the least-squares cost of observations that ``T_from`` fits exactly: how far
+    the observations themselves let the pose go (a chi^2 value with 6 degrees of freedom when ``T_to`` is a
+    draw from their uncertainty). Ours, the bound on tracking's joint refinement
+    (:attr:`~.tracking.TrackingConfig.joint_gate_chi2`)."""
+    T_from, T_to = np.asarray(T_from, float), np.asarray(T_to, float)
+    H = pose_information(T_from, X_w, obs, camera, bf)
+    xi = np.concatenate([so3_log(T_to[:3, :3] @ T_from[:3, :3].T), T_to[:3, 3] - T_from[:3, 3]])
+    return float(xi @ H @ xi)
 
 
 # ----------------------------------------------------------------------------- bundle adjustment

@@ -82,7 +82,7 @@ into map points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -97,13 +97,13 @@ from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, Hybri
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
 from .map import Map
-from .optimize import Observations, optimize_pose, pose_uncertainty
+from .optimize import Observations, optimize_pose, pose_step_mahalanobis, pose_uncertainty
 
 __all__ = ["TrackingConfig", "Tracker", "TrackState", "frustum_candidates", "pose_distance"]
 
 
 _DENSE_KF_MIN_INLIERS = 5  # feature inliers a dense-tracked keyframe needs to be tied to the map (local BA needs observations)
-JOINT_MAX_STEP = (0.01, 0.5)  # m, deg: a Gauss-Newton joint refinement moving the feature pose farther is refused (the feature pose stands)
+JOINT_MAX_STEP = (0.01, 0.5)  # m, deg: a Gauss-Newton joint refinement moving the feature pose farther is refused (the feature pose stands), unless the features' own information allows the move (TrackingConfig.joint_gate_chi2)
 JOINT_KEYFRAME_LEVELS = 4  # image levels of the most recent keyframes kept for the joint refinement (joint_reference = "keyframe"; 4 x 160 x 120 x 4 float32 planes ~ 1.2 MB)
 
 
@@ -199,6 +199,7 @@ class TrackingConfig:
     joint_photometric_samples: int = 3000  # pixels of the photometric term at most (the strongest gradients); ours
     joint_reference: str = "keyframe"  # the image the photometric term aligns to: "keyframe" (the reference keyframe's, kept when it was made, at its pose as local BA keeps it: consecutive frames share one anchored reference) or "frame" (the last frame's: frame to frame, it chains the last pose's error: loop_flat's ATE +50 %); ours
     joint_depth: bool = False  # the joint refinement with the photometric term keeps the dense depth term (against the last frame's depth) too: no better on the static presets (RPE median 1.39 mm with it, sigma 16; 1.36 without, sigma 8) at ~3 ms more a frame; ours
+    joint_gate_chi2: float = 12.6  # a joint refinement moving the feature pose farther than JOINT_MAX_STEP is kept when the move costs the feature inliers at most this much (d^2 = xi^T H xi under their Gauss-Newton information H, one pixel a unit: optimize.pose_step_mahalanobis; 12.6 = the chi^2 95 % quantile of 6 dof): a plain room's far corners leave centimetres free sideways; 0 = the fixed bound only (as before); ours, docs/tracking.md "How far the image may move a weak feature pose"
     joint_dense_step: int = 1  # the depth term of the joint refinement takes every this-many-th sample of the dense grid (dense_stride); ours
     start_from_reference: bool = True  # with a screener that refined the frame's pose on the local map (the reference pose, dynamic.reference_pose), track the local map from that pose and its inlier matches instead of the motion-model search and refinement (the same matching and refinement done once; DynaSLAM's "low-cost tracking" feeds its tracking the same way); ours, docs/speed.md "Tracking from the reference pose"
     overlap_detection: bool = True  # run the detector on frame t in a worker thread while ORB extracts frame t (same results; DS-SLAM / Wu et al. 2022 run semantics in their own thread); ours
@@ -219,6 +220,8 @@ class TrackingConfig:
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= lo):
                 raise ValueError(f"TrackingConfig.{name} must be an integer >= {lo}, got {v!r}")
+        if not self.joint_gate_chi2 >= 0:
+            raise ValueError(f"TrackingConfig.joint_gate_chi2 must be >= 0, got {self.joint_gate_chi2}")
         if not self.joint_photometric_sigma > 0:
             raise ValueError(f"TrackingConfig.joint_photometric_sigma must be > 0 grey levels, got {self.joint_photometric_sigma}")
         if self.dense_reference not in ("frame", "keyframes"):
@@ -670,11 +673,16 @@ class Tracker:
 
     def _image_level(self, frame: SlamFrame, scale: int) -> ImageLevel:
         """``frame``'s :class:`~dynslam_lab.geometry.depth_alignment.ImageLevel` at ``scale`` (cached for the frame
-        being tracked, which is the next one's last frame)."""
+        being tracked, which is the next one's last frame), its ``invalid`` pixels those the screening judged
+        dynamic (:meth:`_dynamic_cells`): as the reference of a later frame, a mover's pixels are no evidence."""
         key = (frame.index, scale)
         if key not in self._levels:
             self._levels = {k: v for k, v in self._levels.items() if k[0] > frame.index - 2}
-            self._levels[key] = image_level(frame.gray_image, frame.depth_image, self.camera, scale)
+            level = image_level(frame.gray_image, frame.depth_image, self.camera, scale)
+            invalid = self._dynamic_cells(frame, level.I.shape, stride=scale)
+            if invalid.any():
+                level = replace(level, invalid=invalid)
+            self._levels[key] = level
         return self._levels[key]
 
     def photometric_prediction(self, frame: SlamFrame, term: DenseTerm) -> np.ndarray:
@@ -982,8 +990,7 @@ class Tracker:
                                  self.camera, cfg.bf, rounds=1, max_iterations=cfg.joint_gn_iterations, dense=term,
                                  damped=False)
             fraction = depth.associated_fraction(T) if depth is not None else 1.0
-            moved_m, moved_deg = pose_distance(T @ frame.T_w_c)
-            if fraction < cfg.dense_min_fraction or moved_m > JOINT_MAX_STEP[0] or moved_deg > JOINT_MAX_STEP[1]:
+            if fraction < cfg.dense_min_fraction or not self._joint_move_allowed(frame, idx, T):
                 return False  # a refinement is a nudge: a jump says the image disagrees with the features
             frame.T_w_c = se3_inv(T)
             self.dense_fraction, self.method = fraction, "joint"
@@ -1004,6 +1011,22 @@ class Tracker:
         self._discard_outliers(frame)
         self.dense_fraction, self.n_inliers, self.method = fraction, n, "joint"
         return True
+
+    def _joint_move_allowed(self, frame: SlamFrame, idx: np.ndarray, T_c_w: np.ndarray) -> bool:
+        """Whether the joint refinement may move ``frame``'s feature pose to ``T_c_w``: within ``JOINT_MAX_STEP``, or
+        (``joint_gate_chi2`` > 0) by a step whose squared Mahalanobis length under the Gauss-Newton information of
+        the feature inliers ``idx`` (:func:`~.optimize.pose_step_mahalanobis`) is at most ``joint_gate_chi2``: to
+        second order, what the move adds to the features' cost. Features spread over the image pin the pose (a centimetre
+        is far outside what they allow); a few far corners in a band of a plain room leave centimetres free along
+        some directions, and there the image may move the pose (ours)."""
+        moved_m, moved_deg = pose_distance(T_c_w @ frame.T_w_c)
+        if moved_m <= JOINT_MAX_STEP[0] and moved_deg <= JOINT_MAX_STEP[1]:
+            return True
+        if self.cfg.joint_gate_chi2 <= 0:
+            return False
+        d2 = pose_step_mahalanobis(se3_inv(frame.T_w_c), T_c_w, self.map.xyz[frame.map_point_ids[idx]],
+                                   self._obs(frame, idx), self.camera, self.cfg.bf)
+        return d2 <= self.cfg.joint_gate_chi2
 
     def _track_features(self, frame: SlamFrame) -> bool:
         """ORB-SLAM2's tracking of a frame: motion model (else reference keyframe), then the local map;

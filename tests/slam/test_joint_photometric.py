@@ -75,18 +75,20 @@ def test_the_keyframe_reference_is_the_reference_keyframes_image_at_its_current_
 
 
 @pytest.mark.parametrize("field,value", [("joint_reference", "keyframes"), ("joint_gn_iterations", -1), ("joint_photometric_scale", 1.5),
-                                         ("joint_photometric_sigma", 0.0), ("joint_photometric_samples", 5), ("joint_dense_step", 0)])
+                                         ("joint_photometric_sigma", 0.0), ("joint_photometric_samples", 5), ("joint_dense_step", 0),
+                                         ("joint_gate_chi2", -1.0)])
 def test_bad_joint_settings_are_refused_by_name(field, value):
     with pytest.raises(ValueError, match=f"TrackingConfig.{field}"):
         TrackingConfig(**{field: value})
 
 
 def test_a_refinement_that_jumps_is_refused_and_the_feature_pose_stands(frames, monkeypatch):
-    """``JOINT_MAX_STEP``: a refinement that moves the feature pose farther than it allows is refused. With the
-    bound at 0 every one is: no frame is ``joint`` and the run is the run without the refinement, pose for pose."""
+    """``JOINT_MAX_STEP``: a refinement that moves the feature pose farther than it allows is refused (without the
+    gate of the features' information, ``joint_gate_chi2 = 0``). With the bound at 0 every one is: no frame is
+    ``joint`` and the run is the run without the refinement, pose for pose."""
     camera, fr = frames
     monkeypatch.setattr(tracking, "JOINT_MAX_STEP", (0.0, 0.0))
-    refused = System(camera, Config())
+    refused = System(camera, Config(tracking=TrackingConfig(joint_gate_chi2=0.0)))
     off = System(camera, Config(tracking=TrackingConfig(joint_every_frame=False)))
     for f in fr[:20]:
         a, b = refused.process(f), off.process(f)
