@@ -674,7 +674,8 @@ class Tracker:
     def _image_level(self, frame: SlamFrame, scale: int) -> ImageLevel:
         """``frame``'s :class:`~dynslam_lab.geometry.depth_alignment.ImageLevel` at ``scale`` (cached for the frame
         being tracked, which is the next one's last frame), its ``invalid`` pixels those the screening judged
-        dynamic (:meth:`_dynamic_cells`): as the reference of a later frame, a mover's pixels are no evidence."""
+        dynamic (:meth:`_dynamic_cells`): left out of the frame's own samples, and as the reference of a later
+        frame no evidence."""
         key = (frame.index, scale)
         if key not in self._levels:
             self._levels = {k: v for k, v in self._levels.items() if k[0] > frame.index - 2}
@@ -698,8 +699,7 @@ class Tracker:
         T_r_w = se3_inv(last.T_w_c)
         for scale in cfg.dense_photometric_scales:
             lf, lr = self._image_level(frame, scale), self._image_level(last, scale)
-            exclude = self._dynamic_cells(frame, lf.I.shape, stride=scale)
-            photo = photometric_term(lf, lr, T_r_w, cfg.dense_photometric_sigma, exclude=exclude,
+            photo = photometric_term(lf, lr, T_r_w, cfg.dense_photometric_sigma, exclude=lf.invalid,
                                      affine=cfg.photometric_affine)
             if photo is not None:
                 T = align_depth(term, T, iterations=10, photometric=photo).T_c_w
@@ -976,7 +976,7 @@ class Tracker:
             lf = self._image_level(frame, k)
             lr, T_r_w = self._joint_reference()
             photo = photometric_term(lf, lr, T_r_w, cfg.joint_photometric_sigma,
-                                     exclude=self._dynamic_cells(frame, lf.I.shape, stride=k),
+                                     exclude=lf.invalid,
                                      max_samples=cfg.joint_photometric_samples, affine=cfg.photometric_affine)
             if photo is not None:
                 term = HybridTerm(depth, photo)
