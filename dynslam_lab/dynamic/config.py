@@ -84,6 +84,12 @@ class ScreeningConfig:
     # Geometric flags within this distance of an a-priori dynamic mask/box are ignored when the semantic stage
     # runs: there the mask decides, and the keypoint patch straddles a moving edge (px). Ours, 10; 0 = off.
     geometry_mask_margin_px: int = 10
+    # The perfect masks (--filters oracle) also judge dynamic the keypoints within this distance of a moving
+    # instance: a corner whose FAST circle (radius 3 px, Rosten and Drummond 2006) reaches across a moving
+    # outline moves with the mover. In image pixels at every resolution (a corner's support is), so not scaled
+    # by for_width. Ours, measured (docs/robustness.md "Perfect masks and the corners on their outlines"); 0 = the
+    # pixel alone.
+    oracle_margin_px: int = 4
     # With masks from the detector, also run depth-RANSAC inside them (else only mask-less boxes). Ours, False.
     depth_ransac_with_masks: bool = False
     # The image width (px) the extents above are set for: on images of another width W, the parameters that are
@@ -97,6 +103,8 @@ class ScreeningConfig:
             raise ValueError(f"ScreeningConfig.geometric_vote must be 'any', 'both' or 'auto', got {self.geometric_vote!r}")
         if self.geometry_mask_margin_px < 0:
             raise ValueError(f"ScreeningConfig.geometry_mask_margin_px must be >= 0, got {self.geometry_mask_margin_px}")
+        if self.oracle_margin_px < 0:
+            raise ValueError(f"ScreeningConfig.oracle_margin_px must be >= 0 px (0 = the pixel alone), got {self.oracle_margin_px}")
         if self.reference_width < 0:
             raise ValueError(f"ScreeningConfig.reference_width must be >= 0 px (0 = never scale), got {self.reference_width}")
         unknown = [s for s in self.full_stages if s not in STAGES]

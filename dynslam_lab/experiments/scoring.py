@@ -58,9 +58,10 @@ import numpy as np
 
 from ..dynamic.oracle import moving_mask, truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
+from ..features.orb import OrbConfig, extract_features
 
-__all__ = ["KeypointScore", "score_keypoints", "ScoringScreener", "KeypointScorer", "recall_by_image_speed",
-           "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS", "OUTLINE_BAND_PX", "IMAGE_SPEED_EDGES_PX"]
+__all__ = ["KeypointScore", "score_keypoints", "signed_outline_distance", "corner_motion_at_outlines", "ScoringScreener",
+           "KeypointScorer", "recall_by_image_speed", "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS", "OUTLINE_BAND_PX", "IMAGE_SPEED_EDGES_PX"]
 
 #: Bin edges (px) of a false positive's distance from the nearest moving instance (``KeypointScorer.fp_by_kind``).
 FP_DISTANCE_EDGES_PX = (4.0, 12.0, 40.0)
@@ -74,6 +75,61 @@ FN_KINDS = ("silhouette < 4 px", "inside")
 OUTLINE_BAND_PX = 4.0
 #: Bin edges (px a frame) of :func:`recall_by_image_speed`.
 IMAGE_SPEED_EDGES_PX = (0.5, 1.0, 2.0, 4.0, 8.0)
+
+
+def signed_outline_distance(moving: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``(N,)`` distance (px) from each keypoint ``uv`` to the nearest outline of the ``(H, W)`` bool mask
+    ``moving``: negative on the mask (its pixel, as :func:`~dynslam_lab.dynamic.oracle.truth_dynamic` reads
+    it), positive off it; ``+inf`` everywhere when the mask is empty."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if not moving.any():
+        return np.full(len(uv), np.inf)
+    on = values_at(moving, uv, outside=False).astype(bool)
+    inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outer = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(on, -values_at(inner, uv, outside=0.0), values_at(outer, uv, outside=np.inf))
+
+
+def corner_motion_at_outlines(frames, orb_config=None, lk_window: int = 21) -> tuple[np.ndarray, np.ndarray]:
+    """How far the ORB corners of a camera at rest move between consecutive frames, by their distance to the
+    moving outlines: ``(distance, motion)``, both ``(N,)`` over all frames after the first, ``distance`` as
+    :func:`signed_outline_distance` (negative on a mover) and ``motion`` the pyramidal Lucas-Kanade displacement
+    (px) to the previous frame of each corner it tracked. A camera at rest leaves a static corner where it was;
+    a corner whose pixel lies on the background but whose FAST circle (radius 3 px) reaches across a moving
+    outline moves with the mover (docs/robustness.md, "Perfect masks and the corners on their outlines").
+
+    ``frames``: renderer frames (with ``instance_mask``, ``moving_ids`` and ``T_w_c_gt``) of a camera at rest;
+    a ValueError names the frame whose camera moved more than 1 mm or 0.05 deg since the one before (a hand-held
+    camera's tremor, as the renderer's ``*_static`` presets have, stays well below), or that has no masks."""
+    cfg = orb_config or OrbConfig()
+    dist, motion = [], []
+    prev, T0 = None, None  # the previous frame's grey image and pose
+    for f in frames:
+        gray = cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY) if f.rgb.ndim == 3 else f.rgb
+        if f.T_w_c_gt is not None:
+            if T0 is not None:
+                dR = T0[:3, :3].T @ f.T_w_c_gt[:3, :3]
+                angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))
+                if np.linalg.norm(f.T_w_c_gt[:3, 3] - T0[:3, 3]) > 1e-3 or angle > 0.05:
+                    raise ValueError(f"corner_motion_at_outlines needs a camera at rest; frame {f.index} "
+                                     f"({f.rgb_path}) moved more than 1 mm or 0.05 deg from the one before")
+            T0 = f.T_w_c_gt
+        moving = moving_mask(f)
+        if moving is None:
+            raise ValueError(f"corner_motion_at_outlines needs the renderer's instance masks; frame {f.index} "
+                             f"({f.rgb_path}) has none")
+        if prev is not None and moving.any():
+            uv = extract_features(gray, cfg).uv.astype(np.float32)
+            if len(uv):
+                back, status, _ = cv2.calcOpticalFlowPyrLK(gray, prev, uv, None, winSize=(lk_window, lk_window),
+                                                          maxLevel=3)
+                ok = status.ravel() == 1
+                dist.append(signed_outline_distance(moving, uv[ok]))
+                motion.append(np.linalg.norm(back[ok] - uv[ok], axis=1))
+        prev = gray
+    if not dist:
+        return np.zeros(0), np.zeros(0)
+    return np.concatenate(dist), np.concatenate(motion)
 
 
 @dataclass
@@ -209,12 +265,7 @@ class KeypointScorer:
             fp = dyn & ~truth
             fn = truth & ~dyn
             # each keypoint's distance to the nearest moving outline, from either side (inf without a mover)
-            if moving.any():
-                inner = cv2.distanceTransform(moving.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                outer = cv2.distanceTransform((~moving).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                to_outline = np.where(truth, values_at(inner, uv, outside=0.0), values_at(outer, uv, outside=np.inf))
-            else:
-                to_outline = np.full(len(uv), np.inf)
+            to_outline = np.abs(signed_outline_distance(moving, uv))
             away = to_outline > OUTLINE_BAND_PX
             self.away_from_outlines = self.away_from_outlines + score_keypoints(dyn[away], truth[away])
             if fn.any():

@@ -106,3 +106,37 @@ def test_oracle_on_the_synthetic_renderer():
     for k in range(len(d)):  # each mask is exactly one instance, with its class
         ids = np.unique(f.instance_mask[d.masks[k]])
         assert len(ids) == 1 and f.instance_classes[int(ids[0])] == d.names[k]
+
+
+def test_perfect_masks_take_the_keypoints_within_the_margin_of_a_moving_outline():
+    """``--filters oracle``: a keypoint within ``oracle_margin_px`` of a moving instance is dynamic (its FAST
+    circle reaches the mover), one farther is not, a still instance's outline changes nothing; the truth the
+    scores use stays the pixel's."""
+    from dynslam_lab.dynamic.config import ScreeningConfig
+    from dynslam_lab.dynamic.oracle import OracleScreener, truth_dynamic
+
+    f = dataclasses.replace(_frame(), moving_ids={1})  # the person (x 30..59, y 20..99) moves, the chair does not
+    uv = np.array([[45.0, 50.0],  # inside the person
+                   [62.0, 50.0],  # 3 px right of its last column (59)
+                   [64.0, 50.0],  # 5 px right
+                   [45.0, 103.0],  # 4 px below its last row (99)
+                   [98.0, 80.0]])  # 2 px left of the still chair
+    truth = truth_dynamic(f, uv)
+    np.testing.assert_array_equal(truth, [True, False, False, False, False])
+    exact = OracleScreener(ScreeningConfig(oracle_margin_px=0))
+    np.testing.assert_array_equal(exact.screen(f, uv).dynamic, truth)
+    np.testing.assert_array_equal(exact.known_region(f), f.instance_mask == 1)
+    grown = OracleScreener(ScreeningConfig(oracle_margin_px=4))
+    np.testing.assert_array_equal(grown.screen(f, uv).dynamic, [True, True, False, True, False])
+    region = grown.known_region(f)
+    # by hand: a pixel's distance to the person's rectangle of pixels (x 30..59, y 20..99)
+    y, x = np.mgrid[0:H, 0:W]
+    dx, dy = np.maximum.reduce([30 - x, 0 * x, x - 59]), np.maximum.reduce([20 - y, 0 * y, y - 99])
+    np.testing.assert_array_equal(region, np.hypot(dx, dy) <= 4)
+    # the mask is made once per frame, never taken from another frame of the same index (another sequence)
+    empty = dataclasses.replace(f, instance_mask=np.zeros_like(f.instance_mask))
+    assert not grown.screen(empty, uv).dynamic.any() and not grown.known_region(empty).any()
+    assert not grown.screen(dataclasses.replace(f, moving_ids=set()), uv).dynamic.any()
+    with pytest.raises(ValueError, match="oracle_margin_px"):
+        ScreeningConfig(oracle_margin_px=-1)
+

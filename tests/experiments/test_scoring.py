@@ -114,3 +114,29 @@ def test_recall_by_image_speed_bins_each_instance_by_f_v_dt_over_z():
 
     with pytest.raises(ValueError, match="speed_3"):
         recall_by_image_speed({(0, 3): [1, 0]}, coverage, 525.0)
+
+
+def test_corners_just_off_a_moving_outline_move_with_the_mover_on_a_camera_at_rest():
+    """The premise of the perfect masks' margin (``ScreeningConfig.oracle_margin_px``), on the renderer's frames:
+    with the camera at rest (``fast_static``: a hand-held tremor of ~0.1 px a frame), an ORB corner whose pixel
+    is on the background within 4 px of a moving outline moves as the mover does; one farther than 12 px stays."""
+    import pytest
+
+    from dynslam_lab.datasets.synthetic import synthetic_sequence
+    from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.dynamic.config import ScreeningConfig
+    from dynslam_lab.experiments.scoring import corner_motion_at_outlines
+
+    seq = TumSequence(synthetic_sequence("fast_static", n_frames=30))
+    dist, motion = corner_motion_at_outlines(seq)
+    on_mover, outline, far = motion[dist <= 0], motion[(dist > 0) & (dist <= 4)], motion[dist > 12]
+    assert len(on_mover) > 100 and len(outline) > 300 and len(far) > 5000
+    assert np.median(on_mover) > 5 and np.median(outline) > 5  # px a frame: with the mover
+    assert np.mean(outline > 1) > 0.6
+    assert np.median(far) < 0.2 and np.mean(far > 1) < 0.1  # the room stays
+    assert ScreeningConfig().oracle_margin_px >= 4  # so perfect masks take that band
+    moved = [seq[0], seq[1]]
+    moved[1].T_w_c_gt = moved[1].T_w_c_gt.copy()
+    moved[1].T_w_c_gt[0, 3] += 0.01
+    with pytest.raises(ValueError, match="camera at rest; frame 1"):
+        corner_motion_at_outlines(moved)
