@@ -753,11 +753,12 @@ for a, b in [(-np.inf, 0), (0, 4), (4, 8), (8, 12), (12, np.inf)]:
 # **What to look for** (the printed lines): corners on the cart and its person move ~6.5 px a frame (95 % more
 # than a pixel), and those on the wall within 4 px of the outline nearly as much (median ~4 px; 71 % more than a
 # pixel); beyond 12 px the room stays (median 0.1 px, under 1 % moved a pixel). Between 4 and 12 px the motion
-# fades (46 % and 21 % moved a pixel): there lie the corners found at coarser pyramid levels, whose circle is 1.2
-# times larger per level. With the perfect masks' margin of 4 px the band that moves
-# with the mover is kept out of tracking. Over 24 stress scenes (240 frames, `benchmarks/robustness.py`) the
-# margin took the perfect masks' median ATE from 4.0 to 3.8 mm and their worst from 107 to 73 mm
-# (`docs/robustness.md`, "Perfect masks and the corners on their outlines").
+# fades (46 % and 21 % moved a pixel); a corner found at a coarser pyramid level has a circle 1.2 times larger per
+# level. With the perfect masks' margin of 4 px the band that moves with the mover is kept out of tracking. Over 24
+# stress scenes (240 frames, `benchmarks/robustness.py`) the margin brought the perfect masks within 2x of the path
+# without movers on 23 instead of 21, their worst ATE from 107 to 64 mm, their median unchanged (3.8 mm); on ten
+# fresh seeds the worst 11.5 -> 9.7 mm, the median 3.9 -> 4.2 (`docs/robustness.md`, "Perfect masks and the corners
+# on their outlines").
 
 # %% [markdown]
 # ## 4e. A plain room is not the moving minority (step 3b, by area)
