@@ -662,7 +662,7 @@ def _ba_normal_equations(pb: _BAProblem, weight: np.ndarray, delta2: float | Non
 
 def _block_sum(values: np.ndarray, index: np.ndarray, n: int) -> np.ndarray:
     """Sum the blocks ``values (K, ...)`` into ``n`` bins by ``index (K,)`` (one bincount per entry)."""
-    flat = values.reshape(len(values), -1)
+    flat = values.reshape(len(values), int(np.prod(values.shape[1:])))  # (0, ...) too: no free camera
     out = np.empty((n, flat.shape[1]))
     for i in range(flat.shape[1]):  # loop over the entries of a block (at most 36)
         out[:, i] = np.bincount(index, weights=flat[:, i], minlength=n)

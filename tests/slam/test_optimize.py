@@ -98,6 +98,17 @@ def test_local_ba_reduces_pose_and_point_errors():
     assert np.array_equal(res.T_c_w[0], np.eye(4))  # the fixed keyframe does not move
 
 
+def test_bundle_adjustment_with_every_pose_fixed_refines_the_points_alone():
+    """Every keyframe held (structure only, no free camera): the points move to the truth, no pose moves."""
+    rng = np.random.default_rng(5)
+    X, poses, oc, op, obs = _ba_problem(rng)
+    Xn = X + rng.normal(0, 0.01, X.shape)
+    res = local_bundle_adjustment(poses, set(poses), Xn, oc, op, obs, CAM, BF, max_iterations=10)
+    assert all(np.allclose(res.T_c_w[k], poses[k], rtol=0, atol=1e-12) for k in poses)
+    err = lambda P: np.median(np.linalg.norm(CAM.project(P)[0] - CAM.project(X)[0], axis=1))  # noqa: E731
+    assert err(res.points) < 0.2 * err(Xn) and res.cost_after < 0.05 * res.cost_before
+
+
 def _noisy_pose_problem(rng, n=300):
     X = _points(rng, n)
     T_true = make_pose(so3_exp([0.04, -0.06, 0.02]), [0.12, -0.05, 0.09])
