@@ -717,23 +717,27 @@ print({name: f"largest error {np.nanmax(r['err']):.0f} mm, frames tracked by dep
 
 # %% figures=1
 cart_dist, cart_motion = corner_motion_at_outlines(TumSequence(specs["cart_static"].root))
-EDGES = np.array([-40, -12, -8, -4, 0, 2, 4, 6, 8, 12, 20, 40, np.inf])
+OUTLINE_EDGES = np.array([-np.inf, -12, -8, -4, 0, 2, 4, 6, 8, 12, 20, 40, np.inf])
+# bins (OUTLINE_EDGES[i], OUTLINE_EDGES[i + 1]] px, as the margin counts (a corner exactly 4 px off is within 4 px)
+outline_bin = np.digitize(cart_dist, OUTLINE_EDGES[1:-1], right=True)
+outline_labels = [f"({OUTLINE_EDGES[i]:g}, {OUTLINE_EDGES[i + 1]:g}]" for i in range(len(OUTLINE_EDGES) - 1)]
+outline_median, outline_moved = [], []
+for i in range(len(outline_labels)):
+    in_bin = cart_motion[outline_bin == i]
+    outline_median.append(np.median(in_bin) if len(in_bin) else np.nan)
+    outline_moved.append(np.mean(in_bin > 1) if len(in_bin) else np.nan)
 
 
 def draw_outline_motion(margin_px=4):
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 4.2), constrained_layout=True)
-    bins = np.digitize(cart_dist, EDGES[1:-1])
-    centres = [f"{EDGES[i]:g}..{EDGES[i + 1]:g}" for i in range(len(EDGES) - 1)]
-    med = [np.median(cart_motion[bins == i]) if (bins == i).any() else np.nan for i in range(len(centres))]
-    moved = [np.mean(cart_motion[bins == i] > 1) if (bins == i).any() else np.nan for i in range(len(centres))]
-    x = np.arange(len(centres))
-    ax.bar(x, med, color=[DYNAMIC if EDGES[i + 1] <= margin_px else STATIC for i in range(len(centres))])
-    ax.set_xticks(x, centres, rotation=45, fontsize=8)
+    x = np.arange(len(outline_labels))
+    ax.bar(x, outline_median, color=[DYNAMIC if hi <= margin_px else STATIC for hi in OUTLINE_EDGES[1:]])
+    ax.set_xticks(x, outline_labels, rotation=45, fontsize=8)
     ax.set_xlabel("distance to the nearest moving outline (px; negative: on the mover)")
     ax.set_ylabel("median motion (px a frame)")
     ax.set_title(f"red: judged dynamic by perfect masks with a margin of {margin_px} px")
-    ax2.plot(x, moved, "o-", color="k")
-    ax2.set_xticks(x, centres, rotation=45, fontsize=8)
+    ax2.plot(x, outline_moved, "o-", color="k")
+    ax2.set_xticks(x, outline_labels, rotation=45, fontsize=8)
     ax2.set_ylabel("share of corners that moved > 1 px")
     ax2.set_ylim(0, 1)
     band = (cart_dist > 0) & (cart_dist <= margin_px)

@@ -59,6 +59,7 @@ import numpy as np
 from ..dynamic.oracle import moving_mask, truth_dynamic
 from ..dynamic.table import KeypointTable, depth_at, values_at
 from ..features.orb import OrbConfig, extract_features
+from ..geometry.se3 import rotation_angle_deg
 
 __all__ = ["KeypointScore", "score_keypoints", "signed_outline_distance", "corner_motion_at_outlines", "ScoringScreener",
            "KeypointScorer", "recall_by_image_speed", "FP_DISTANCE_EDGES_PX", "FP_KINDS", "FN_KINDS", "OUTLINE_BAND_PX", "IMAGE_SPEED_EDGES_PX"]
@@ -105,11 +106,10 @@ def corner_motion_at_outlines(frames, orb_config=None, lk_window: int = 21) -> t
     dist, motion = [], []
     prev, T0 = None, None  # the previous frame's grey image and pose
     for f in frames:
-        gray = cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY) if f.rgb.ndim == 3 else f.rgb
+        gray = f.gray
         if f.T_w_c_gt is not None:
             if T0 is not None:
-                dR = T0[:3, :3].T @ f.T_w_c_gt[:3, :3]
-                angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))
+                angle = rotation_angle_deg(T0[:3, :3].T @ f.T_w_c_gt[:3, :3])
                 if np.linalg.norm(f.T_w_c_gt[:3, 3] - T0[:3, 3]) > 1e-3 or angle > 0.05:
                     raise ValueError(f"corner_motion_at_outlines needs a camera at rest; frame {f.index} "
                                      f"({f.rgb_path}) moved more than 1 mm or 0.05 deg from the one before")
