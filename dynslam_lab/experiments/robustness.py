@@ -45,7 +45,8 @@ from ..runs.layout import atomic_write
 from .scoring import KeypointScorer
 
 __all__ = ["SequenceSpec", "root_specs", "FILTERS", "REFERENCE", "run_one", "resumable_run", "run_robustness", "summarise", "robustness_markdown",
-           "robustness_plot", "TARGETS", "TARGET_COVERAGE", "ATE_BOUND_M", "REFERENCE_LOST_SHARE", "by_kind", "scene_kind", "synthetic_specs"]
+           "robustness_plot", "TARGETS", "TARGET_COVERAGE", "ATE_BOUND_M", "REFERENCE_LOST_SHARE", "by_kind", "scene_kind", "synthetic_specs",
+           "synthetic_root"]
 
 #: Filter label -> (``--filters``, ``--detector``); ``full+onnx`` is added when a model is given.
 FILTERS: dict[str, tuple[str, str]] = {
@@ -123,9 +124,24 @@ def synthetic_specs(names, n_frames: int | None = None, seed: int = 0) -> list[S
             ref_root = synthetic_sequence(ref, n_frames=n_frames, seed=seed) if ref in PRESETS and ref != name else None
             out.append(SequenceSpec(name, synthetic_sequence(name, n_frames=n_frames, seed=seed), ref_root))
         else:
-            raise ValueError(f"unknown synthetic sequence {name!r}; stress scenes: {list(stress.STRESS_SUITE)}, random_N "
-                             f"(a stress scene drawn from seed N), office presets: {list(PRESETS)}")
+            raise _unknown_sequence(name)
     return out
+
+
+def synthetic_root(name: str, n_frames: int | None = None, seed: int = 0) -> Path:
+    """The rendered (cached) folder of one synthetic sequence, named as for :func:`synthetic_specs`, without
+    rendering its reference."""
+    p = _stress_preset(name, n_frames)
+    if p is not None:
+        return synthetic_sequence(p)
+    if name in PRESETS:
+        return synthetic_sequence(name, n_frames=n_frames, seed=seed)
+    raise _unknown_sequence(name)
+
+
+def _unknown_sequence(name: str) -> ValueError:
+    return ValueError(f"unknown synthetic sequence {name!r}; stress scenes: {list(stress.STRESS_SUITE)}, random_N "
+                      f"(a stress scene drawn from seed N), office presets: {list(PRESETS)}")
 
 
 def _stress_preset(name: str, n_frames: int | None) -> stress.StressPreset | None:

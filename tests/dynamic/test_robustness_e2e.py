@@ -84,3 +84,9 @@ def test_random_scene_names_draw_the_same_scene_as_synth_random():
     assert (with_movers.root / "moving.txt").is_file()
     with pytest.raises(ValueError, match="random_N"):
         synthetic_specs(["random_x"], n_frames=6)
+    # one scene without its reference (benchmarks/room_witness.py): the same cached folder
+    from dynslam_lab.experiments.robustness import synthetic_root
+
+    assert synthetic_root("random_7", n_frames=6) == spec.root
+    with pytest.raises(ValueError, match="unknown synthetic sequence 'random_x'"):
+        synthetic_root("random_x", n_frames=6)
