@@ -917,10 +917,10 @@ print("px from the rest refined alone (pose of all / one step):",
 # %% figures=1
 from dynslam_lab.experiments.room_witness import level_mask, measure_witness, movers_of, plane_pixels
 
-WITNESS = {}
-for pixels in ("planes", "oracle", "all"):
-    system = build_pipeline(config, carried_seq.camera, detector="none", filters="geometry", loop_closing=False)
-    WITNESS[pixels] = list(measure_witness(carried_seq, system, len(carried_seq), offset=8, pixels=pixels))
+system = build_pipeline(config, carried_seq.camera, detector="none", filters="geometry", loop_closing=False)
+WITNESS = {"planes": [], "oracle": [], "all": []}
+for row in measure_witness(carried_seq, system, len(carried_seq), offset=8, pixels=tuple(WITNESS)):  # one run, three sets
+    WITNESS[row.pixels].append(row)
 witness_frames = [r.frame for r in WITNESS["planes"]]
 carried_movers = sorted(movers_of(carried_seq.root))
 

@@ -20,8 +20,9 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from ..datasets.tum import read_moving
 from ..geometry.depth_alignment import DenseTerm, align_depth, depth_sigma, image_level, photometric_term, vertex_normal_grid
-from ..geometry.se3 import rotation_angle_deg
+from ..geometry.se3 import relative_pose, rotation_angle_deg
 
 __all__ = ["PIXELS", "WitnessRow", "large_planes", "bounding_planes", "plane_pixels", "movers_of", "level_mask", "witness",
            "pose_error", "measure_witness"]
@@ -118,15 +119,9 @@ def plane_pixels(depth: np.ndarray, camera, shape: tuple[int, int], stride: int 
 
 
 def movers_of(root: Path) -> set[int]:
-    """Every instance that moves in some frame of a rendered sequence (its ``moving.txt``: ``timestamp id id ...``)."""
-    path = Path(root) / "moving.txt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: the renderer's list of moving instances is missing (--pixels oracle needs it)")
-    ids: set[int] = set()
-    for line in path.read_text().splitlines():
-        if line.strip() and not line.lstrip().startswith("#"):
-            ids.update(int(x) for x in line.split()[1:])
-    return ids
+    """Every instance that moves in some frame of a rendered sequence (its ``moving.txt``,
+    :func:`~dynslam_lab.datasets.tum.read_moving`; a FileNotFoundError names the file when there is none)."""
+    return set().union(*read_moving(root).values())
 
 
 def level_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -144,11 +139,8 @@ def witness(frame, past, T_c_p: np.ndarray, camera, keep_frame: np.ndarray, keep
     ref.invalid = ~keep_past
     level = image_level(frame.gray, frame.depth, camera, scale)
     photo = photometric_term(level, ref, np.eye(4), sigma, exclude=~keep_frame)
-    full_keep_past = cv2.resize(keep_past.astype(np.uint8), (past.depth.shape[1], past.depth.shape[0]),
-                                interpolation=cv2.INTER_NEAREST) > 0
-    grid = vertex_normal_grid(np.where(full_keep_past, past.depth, 0), camera, stride)
-    full_keep = cv2.resize(keep_frame.astype(np.uint8), (frame.depth.shape[1], frame.depth.shape[0]),
-                           interpolation=cv2.INTER_NEAREST) > 0
+    grid = vertex_normal_grid(np.where(level_mask(keep_past, past.depth.shape), past.depth, 0), camera, stride)
+    full_keep = level_mask(keep_frame, frame.depth.shape)
     v, u = np.mgrid[stride // 2:frame.depth.shape[0]:stride, stride // 2:frame.depth.shape[1]:stride]
     z = frame.depth[v, u]
     ok = (z > 0) & full_keep[v, u]
@@ -173,8 +165,9 @@ def pose_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class WitnessRow:
-    """One frame of :func:`measure_witness`: the frame, the earlier frame, the run's and the witness's errors (mm,
-    deg) of the relative pose between the two against the truth, and the witness's cost ratio."""
+    """One frame of :func:`measure_witness` for one pixel set: the frame, the earlier frame, the run's and the
+    witness's errors (mm, deg) of the relative pose between the two against the truth, and the witness's cost
+    ratio."""
 
     frame: int
     earlier: int
@@ -183,33 +176,38 @@ class WitnessRow:
     witness_mm: float
     witness_deg: float
     cost_ratio: float
+    pixels: str = "planes"
 
 
-def measure_witness(seq, system, n_frames: int, offset: int = 16, pixels: str = "planes", scale: int = 2,
-                    margin: int = 3, first: int = 0) -> Iterator[WitnessRow]:
+def measure_witness(seq, system, n_frames: int, offset: int = 16, pixels: str | tuple[str, ...] = "planes",
+                    scale: int = 2, margin: int = 3, first: int = 0) -> Iterator[WitnessRow]:
     """Run ``system`` (``pipeline.build_pipeline``) over the first ``n_frames`` of ``seq`` and yield a
     :class:`WitnessRow` for every frame ``t >= max(first, offset)`` where the run, the frame ``t - offset`` and the
-    truth all have a pose. ``pixels``: ``planes`` (:func:`plane_pixels`), ``oracle`` (off every instance the renderer
-    moves at some time, ``moving.txt``) or ``all``."""
-    if pixels not in PIXELS:
-        raise ValueError(f"pixels must be one of {PIXELS}, got {pixels!r}")
+    truth all have a pose, one per pixel set of ``pixels`` (one name or several, measured on the same run):
+    ``planes`` (:func:`plane_pixels`), ``oracle`` (off every instance the renderer moves at some time,
+    ``moving.txt``) or ``all``."""
+    sets = (pixels,) if isinstance(pixels, str) else tuple(pixels)
+    if not sets or any(p not in PIXELS for p in sets):
+        raise ValueError(f"pixels must be one or more of {PIXELS}, got {pixels!r}")
     if offset < 1 or scale < 1 or margin < 0:
         raise ValueError(f"offset >= 1, scale >= 1 and margin >= 0 required, got {offset}, {scale}, {margin}")
-    movers = sorted(movers_of(seq.root)) if pixels == "oracle" else []
-    kept: dict[int, tuple] = {}  # frame index -> (frame, estimated T_w_c, pixels kept at the level's size)
+    movers = sorted(movers_of(seq.root)) if "oracle" in sets else []
+    kept: dict[int, tuple] = {}  # frame index -> (frame, estimated T_w_c, {pixel set: pixels kept at the level's size})
     for k, frame in enumerate(seq):
         if k >= n_frames:
             break
         T_w_c = system.process(frame).T_w_c
         shape = (frame.depth.shape[0] // scale, frame.depth.shape[1] // scale)
-        if pixels == "planes":
-            keep = plane_pixels(frame.depth, seq.camera, shape, margin=margin)
-        elif pixels == "oracle":
-            if frame.instance_mask is None:
-                raise ValueError(f"{seq.root}: pixels 'oracle' needs the renderer's instance masks")
-            keep = level_mask(~np.isin(frame.instance_mask, movers), shape)
-        else:
-            keep = np.ones(shape, bool)
+        keep = {}
+        for name in sets:
+            if name == "planes":
+                keep[name] = plane_pixels(frame.depth, seq.camera, shape, margin=margin)
+            elif name == "oracle":
+                if frame.instance_mask is None:
+                    raise ValueError(f"{seq.root}: pixels 'oracle' needs the renderer's instance masks")
+                keep[name] = level_mask(~np.isin(frame.instance_mask, movers), shape)
+            else:
+                keep[name] = np.ones(shape, bool)
         kept[k] = (frame, T_w_c, keep)
         kept.pop(k - offset - 1, None)
         p = k - offset
@@ -218,8 +216,9 @@ def measure_witness(seq, system, n_frames: int, offset: int = 16, pixels: str = 
         past, T_w_p, keep_p = kept[p]
         if T_w_c is None or T_w_p is None or frame.T_w_c_gt is None or past.T_w_c_gt is None:
             continue
-        T_c_p = np.linalg.inv(T_w_c) @ T_w_p
-        T_true = np.linalg.inv(frame.T_w_c_gt) @ past.T_w_c_gt
-        T_wit, ratio = witness(frame, past, T_c_p, seq.camera, keep, keep_p, scale)
-        run_err, wit_err = pose_error(T_c_p, T_true), pose_error(T_wit, T_true)
-        yield WitnessRow(k, p, *run_err, *wit_err, ratio)
+        T_c_p = relative_pose(T_w_c, T_w_p)
+        T_true = relative_pose(frame.T_w_c_gt, past.T_w_c_gt)
+        run_err = pose_error(T_c_p, T_true)
+        for name in sets:
+            T_wit, ratio = witness(frame, past, T_c_p, seq.camera, keep[name], keep_p[name], scale)
+            yield WitnessRow(k, p, *run_err, *pose_error(T_wit, T_true), ratio, name)

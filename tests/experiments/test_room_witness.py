@@ -52,3 +52,25 @@ def test_movers_of_reads_every_instance_that_moves_and_names_a_missing_list(tmp_
     assert room_witness.movers_of(tmp_path) == {2, 5}
     with pytest.raises(FileNotFoundError, match="nowhere.*moving.txt"):
         room_witness.movers_of(tmp_path / "nowhere")
+
+
+@pytest.mark.slow
+def test_several_pixel_sets_on_one_run_give_the_rows_of_separate_runs():
+    """The notebook measures three pixel sets on one run: each set's rows are those of a run of its own."""
+    from dynslam_lab.config import Config
+    from dynslam_lab.datasets.tum import TumSequence
+    from dynslam_lab.experiments.robustness import synthetic_root
+    from dynslam_lab.pipeline import build_pipeline
+
+    seq = TumSequence(synthetic_root("static_xyz", n_frames=12))
+
+    def run(pixels):
+        system = build_pipeline(Config(), seq.camera, detector="none", filters="geometry", loop_closing=False)
+        return list(room_witness.measure_witness(seq, system, 12, offset=4, pixels=pixels))
+
+    both = run(("planes", "all"))
+    assert [r.pixels for r in both] == ["planes", "all"] * 8
+    assert [r for r in both if r.pixels == "planes"] == run("planes")
+    assert [r for r in both if r.pixels == "all"] == run("all")
+    with pytest.raises(ValueError, match="pixels must be one or more of"):
+        run(("planes", "walls"))
