@@ -23,6 +23,7 @@ Palazzolo et al., "ReFusion", IROS 2019 (Bonn RGB-D Dynamic dataset intrinsics).
 from __future__ import annotations
 
 import json
+import logging
 import re
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -184,7 +185,8 @@ def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None =
 
     ``rgbd_dataset_freiburg3_walking_xyz`` -> ``tum_fr3``; ``fr1_...`` -> ``tum_fr1``;
     ``rgbd_bonn_...`` -> ``bonn``; a folder holding a ``camera.json`` (written by the
-    synthetic renderer) uses that file. ``override`` (a preset name or a camera) wins.
+    synthetic renderer) uses that file. ``override`` (a preset name or a camera) wins. Otherwise
+    the ``default`` preset, with a warning (once per folder): its intrinsics are a guess.
     """
     if isinstance(override, PinholeCamera):
         return override
@@ -202,7 +204,17 @@ def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None =
     m = re.search(r"(?:freiburg|fr)([123])", name)
     if m:
         return CAMERA_PRESETS[f"tum_fr{m.group(1)}"]
-    return CAMERA_PRESETS["default"]
+    cam = CAMERA_PRESETS["default"]
+    if str(path) not in _DEFAULT_SAID:  # once per folder: the intrinsics are a guess
+        _DEFAULT_SAID.add(str(path))
+        logging.getLogger(__name__).warning(
+            "%s: no camera.json and no preset in the folder's name (freiburg1-3, fr1-3, bonn): using the 'default' "
+            "camera (fx %g, fy %g, cx %g, cy %g, %dx%d, depth_scale %g); write camera.json or pass --camera if these "
+            "are not its intrinsics", path, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.depth_scale)
+    return cam
+
+
+_DEFAULT_SAID: set[str] = set()
 
 
 def load_camera_json(path: str | Path) -> PinholeCamera:

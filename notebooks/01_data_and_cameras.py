@@ -164,6 +164,50 @@ figure_explorer(draw_cloud, name="01 back-projection", stride=int_slider("pixel 
 # intrinsics and the depth scale are right: a wrong $f_x$ bends the walls into a fan.
 
 # %% [markdown]
+# ## 3b. Metres or not: the depth scale
+#
+# A depth PNG holds integers, and the camera's `depth_scale` says how many make a metre: 5000 for
+# TUM and Bonn, 1000 (millimetres) for many other sensors. Nothing in the images says which, and
+# geometry cannot tell either: a world scaled by $s$, seen from a path scaled by $s$, projects to
+# the same pixels. So a wrong scale runs without a complaint and returns a path of the wrong size.
+# `dynslam run` checks it twice (`dynslam_lab.datasets.depth_scale`, docs/datasets.md "The depth
+# scale"): before the run, the median depth of five frames must lie inside the range tracking uses
+# (`tracking.min_depth`-`max_depth`, 0.1-8 m); after it, where there is ground truth, the path is
+# aligned with a similarity and a scale far from 1 is reported in `summary.json`. Below, this
+# sequence read at several scales (the right one is 5000).
+
+# %% figures=1
+from dynslam_lab.datasets.depth_scale import check_depth_range, sample_depth
+from dynslam_lab.datasets.tum import DatasetError
+
+rows = []
+for scale in (1000, 2500, 5000, 10000, 25000):
+    read_so = TumSequence(seq_dir, camera=seq.camera.with_(depth_scale=float(scale)))
+    try:
+        check_depth_range(read_so, None, 0.1, 8.0)
+        verdict = "accepted"
+    except DatasetError:
+        verdict = "refused before the run"
+    rows.append({"depth_scale": scale, "median depth [m]": round(sample_depth(read_so).median_m, 2), "check": verdict})
+table = pd.DataFrame(rows).set_index("depth_scale")
+display(table)
+fig, ax = plt.subplots(figsize=(8, 3.2), constrained_layout=True)
+ax.axhspan(0.1, 8.0, color=hex_color("static"), alpha=0.15, label="tracking.min_depth - max_depth")
+ax.bar([str(k) for k in table.index], table["median depth [m]"], label="median depth of five frames",
+       color=[hex_color("static") if v == "accepted" else hex_color("dynamic") for v in table["check"]])
+ax.set_xlabel("depth_scale read with [units per metre]")
+ax.set_ylabel("depth [m]")
+ax.legend(fontsize="small")
+ax.set_title("the same depth images read at five scales (red: refused)");
+
+# %% [markdown]
+# **What to look for**: at 5000 the room reads 2.7 m (the median of five frames). Read as
+# millimetres (1000) it would be 13.5 m, above the shaded band of depths tracking uses, and the run
+# is refused (the red bar) with a message naming the file and the scale. A factor of two (2500:
+# 5.4 m) and scales too fine (10000, 25000: 1.35 m and 0.54 m, plausible close-ups) pass: only the
+# ground truth can catch those, after the run (`trajectory_scale` and `warnings` in `summary.json`).
+
+# %% [markdown]
 # ## 4. Real TUM frames
 #
 # With `../shared/data` beside the clone, a real fr3/walking_xyz colour frame, the depth frame

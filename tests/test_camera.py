@@ -60,3 +60,17 @@ def test_camera_json_roundtrip_and_errors(tmp_path):
         camera_for_sequence(tmp_path, "nope")
     with pytest.raises(ValueError, match="fx"):
         PinholeCamera(0, 1, 0, 0)
+
+
+def test_a_folder_without_camera_json_or_preset_name_says_its_intrinsics_are_a_guess(tmp_path, caplog):
+    import logging
+
+    mine = tmp_path / "my_scene_03"
+    mine.mkdir()
+    with caplog.at_level(logging.WARNING, logger="dynslam_lab.camera"):
+        assert camera_for_sequence(mine).name == "default"
+        assert camera_for_sequence(mine).name == "default"  # said once per folder
+        assert camera_for_sequence(tmp_path / "rgbd_dataset_freiburg2_desk").name == "tum_fr2"
+        assert camera_for_sequence(mine, "bonn").name == "bonn"
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and str(mine) in said[0] and "write camera.json or pass --camera" in said[0]

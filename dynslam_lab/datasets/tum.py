@@ -33,6 +33,19 @@ class DatasetError(ValueError):
     """A dataset file is missing or malformed; the message names the file and line."""
 
 
+def _unit_hint(ts: np.ndarray, name: str) -> str:
+    """A note when the timestamps of ``name`` are too large for seconds: milli-, micro- or nanoseconds since the
+    epoch (the TUM layout lists seconds; seconds since 1970 are ~1e9 today)."""
+    if len(ts) == 0 or not np.abs(ts).max() >= 1e11:
+        return ""
+    big = float(np.abs(ts).max())
+    for unit, factor in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)):
+        if big / factor < 1e11:
+            return (f"; {name}'s timestamps look like {unit} ({big:.3g}, which is {big / factor:.3g} s; the TUM layout "
+                    f"lists seconds): divide them by {factor:.0e}")
+    return f"; {name}'s timestamps ({big:.3g}) are too large for seconds (the TUM layout lists seconds)"
+
+
 def read_file_list(path: str | Path, min_fields: int = 2) -> tuple[np.ndarray, list[list[str]]]:
     """Read a TUM list file (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``).
 
@@ -202,8 +215,9 @@ class TumSequence:
         if len(lists) == 1:
             return f"{self.root}: no frames left after stride/max_frames"
         (a, _), (b, _) = read_file_list(lists[0]), read_file_list(lists[1])
+        hint = "".join(_unit_hint(ts, name) for ts, name in ((a, "rgb.txt"), (b, "depth.txt")))
         return (f"{self.root}: no colour/depth pairs within {self.max_diff} s of each other: rgb.txt spans "
-                f"[{a.min():.6f}, {a.max():.6f}] s, depth.txt [{b.min():.6f}, {b.max():.6f}] s; check the timestamps")
+                f"[{a.min():.6f}, {a.max():.6f}] s, depth.txt [{b.min():.6f}, {b.max():.6f}] s; check the timestamps{hint}")
 
     def _read_entries(self, associations) -> list[_Entry]:
         masks_dir = self.root / "masks"
@@ -285,6 +299,10 @@ class TumSequence:
     @property
     def timestamps(self) -> np.ndarray:
         return np.array([e.ts for e in self._entries])
+
+    def depth_path(self, index: int) -> Path:
+        """The depth image of frame ``index`` (as listed; not read)."""
+        return self._entries[index].depth
 
     def gt_pose(self, index: int) -> np.ndarray | None:
         """Ground-truth ``T_w_c`` associated with frame ``index`` (within ``max_diff``), or None."""

@@ -35,6 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..config import config_to_dict
+from ..datasets.depth_scale import check_depth_range, depth_scale_from_trajectory
 from ..datasets.prefetch import FramePrefetcher, PrefetchConfig
 from ..evaluation.tables import evaluate
 from ..mapping.dense import write_dense_map
@@ -339,6 +340,9 @@ def run_sequence(
         raise ValueError(f"flush_every must be >= 1 frame, got {flush_every}")
     if not flush_cost_ratio >= 0:
         raise ValueError(f"flush_cost_ratio must be >= 0, got {flush_cost_ratio}")
+    if callable(getattr(sequence, "depth_path", None)):  # a wrong depth scale is refused before anything is written
+        tc = system.config.tracking
+        check_depth_range(sequence, n, tc.min_depth, tc.max_depth)
     if system.screener is not None:
         system.screener.reset()
     with OutputFolder(outdir, kind="run", force=force) as folder:
@@ -425,6 +429,14 @@ def _finish(sequence, system: System, rec: RunRecorder, n: int, t_run: float) ->
         except Exception as exc:  # evaluation must not lose the run
             summary["evaluation_error"] = f"{type(exc).__name__}: {exc}"
             log.warning("evaluation against %s failed: %s", Path(sequence.root) / "groundtruth.txt", exc)
+        try:  # a path of the wrong size: the depth scale (no verdict where the path cannot be aligned)
+            scale = depth_scale_from_trajectory(sequence.groundtruth, est, system.camera.depth_scale)
+            summary["trajectory_scale"] = scale.scale
+            if scale.warning:
+                summary["warnings"] = [scale.warning]
+                log.warning("%s", scale.warning)
+        except Exception as exc:  # a path that cannot be aligned with a scale (a camera at rest) has no verdict
+            log.debug("no depth-scale verdict from the trajectory: %s", exc)
     rec.write(system, summary, final=True)
     # The dense map (another stage; its failure is reported, never fatal).
     outdir = rec.writer.outdir

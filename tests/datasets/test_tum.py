@@ -59,6 +59,17 @@ def test_no_association_is_a_clear_error(tmp_path):
         TumSequence(tmp_path / "seq")
 
 
+def test_timestamps_in_nanoseconds_are_named_as_such(tmp_path):
+    _write_seq(tmp_path / "seq")
+    for name in ("rgb.txt", "depth.txt"):
+        p = tmp_path / "seq" / name
+        rows = [ln.split() for ln in p.read_text().splitlines() if ln and not ln.startswith("#")]
+        p.write_text("".join(f"{round(float(t) * 1e9 + 1.6e18)} {f}\n" for t, f in rows))
+    with pytest.raises(DatasetError, match=r"no colour/depth pairs.*rgb.txt's timestamps look like nanoseconds "
+                                           r"\(1.6e\+18, which is 1.6e\+09 s.*divide them by 1e\+09"):
+        TumSequence(tmp_path / "seq")
+
+
 def test_malformed_list_line_names_file_and_line(tmp_path):
     _write_seq(tmp_path / "seq")
     p = tmp_path / "seq" / "rgb.txt"
