@@ -180,6 +180,9 @@ CAMERA_PRESETS: dict[str, PinholeCamera] = {
 }
 
 
+_DEFAULT_SAID: set[str] = set()  # folders already warned about (camera_for_sequence's default)
+
+
 def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None = None) -> PinholeCamera:
     """Pick the intrinsics of a sequence from its folder name.
 
@@ -212,9 +215,6 @@ def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None =
             "camera (fx %g, fy %g, cx %g, cy %g, %dx%d, depth_scale %g); write camera.json or pass --camera if these "
             "are not its intrinsics", path, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.depth_scale)
     return cam
-
-
-_DEFAULT_SAID: set[str] = set()
 
 
 def load_camera_json(path: str | Path) -> PinholeCamera:

@@ -15,15 +15,14 @@ scale). Two checks catch it (ours):
    time-of-flight sensor's). Outside it most keypoints would have no usable depth and the run could
    not work: a :class:`~dynslam_lab.datasets.tum.DatasetError` names the file, the scale and what the
    same numbers would mean at 1000 and 5000 units per metre, before anything is written. TUM's
-   ``fr3/walking_xyz`` reads 2.6 m (median) and the synthetic scenes 3-5 m; a scale five times too small
+   ``fr3/walking_xyz`` reads 2.6 m (median) and the synthetic scenes 2.7-5 m; a scale five times too small
    (1000 for 5000) puts them at 13-25 m and is refused. Five times too large (millimetres read as 5000)
    gives 0.5-1 m, a plausible close-up: only the ground truth can tell.
 2. **After the run** (:func:`depth_scale_from_trajectory`): where the sequence has ground truth, the
    estimate is aligned to it with a similarity (Umeyama 1991, Sim(3)); a scale far from 1 that
    explains the error (the Sim(3) ATE much below the rigid one and below the path's own spread) is a
-   depth scale off by that factor,
-   and the run's ``summary.json`` gets a warning with the scale that would fit. The test needs a path
-   that moves (``min_path_m``): a camera at rest has no scale to measure.
+   depth scale off by that factor, and the run's ``summary.json`` gets a warning with the scale that
+   would fit. The test needs a path that moves (``min_path_m``): a camera at rest has no scale to measure.
 """
 
 from __future__ import annotations
