@@ -430,7 +430,8 @@ def _finish(sequence, system: System, rec: RunRecorder, n: int, t_run: float) ->
             summary["evaluation_error"] = f"{type(exc).__name__}: {exc}"
             log.warning("evaluation against %s failed: %s", Path(sequence.root) / "groundtruth.txt", exc)
         try:  # a path of the wrong size: the depth scale (no verdict where the path cannot be aligned)
-            scale = depth_scale_from_trajectory(sequence.groundtruth, est, system.camera.depth_scale)
+            read_with = getattr(sequence, "camera", system.camera)  # the camera whose depth_scale read the frames
+            scale = depth_scale_from_trajectory(sequence.groundtruth, est, read_with.depth_scale)
             summary["trajectory_scale"] = scale.scale
             if scale.warning:
                 summary["warnings"] = [scale.warning]
