@@ -208,6 +208,19 @@ ax.set_title("the same depth images read at five scales (red: refused)");
 # ground truth can catch those, after the run (`trajectory_scale` and `warnings` in `summary.json`).
 
 # %% [markdown]
+# Before running a folder of your own, `dynslam check SEQDIR` (or `check_sequence` here) says what a run
+# would take from it: the pairs and their rate, where the camera's intrinsics come from, the image size,
+# this depth median, how much of the run the ground truth covers. `!` marks a warning, `X` what
+# `dynslam run` would refuse. Here the sequence above, then the same folder read as millimetres.
+
+# %%
+from dynslam_lab.datasets.check import check_sequence
+
+print(check_sequence(seq_dir).format())
+print()
+print(check_sequence(seq_dir, camera=seq.camera.with_(depth_scale=1000.0)).format())
+
+# %% [markdown]
 # ## 4. Real TUM frames
 #
 # With `../shared/data` beside the clone, a real fr3/walking_xyz colour frame, the depth frame
