@@ -11,6 +11,7 @@ camera, :func:`~dynslam_lab.datasets.depth_scale.check_depth_range`), so the two
 
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,11 +99,15 @@ def check_sequence(root: str | Path, camera: PinholeCamera | str | None = None, 
     if camera is not None and isinstance(camera, str) and camera not in CAMERA_PRESETS:
         rep.add("camera", "error", f"unknown camera preset {camera!r}; choose one of {sorted(CAMERA_PRESETS)}")
         return rep
+    cam_log = logging.getLogger("dynslam_lab.camera")  # a guessed camera is this report's line, not a log warning too
+    was_disabled, cam_log.disabled = cam_log.disabled, True
     try:
         seq = TumSequence(root, camera=camera, max_diff=max_diff)
     except (DatasetError, ValueError, OSError) as exc:
         rep.add("frames", "error", str(exc))
         return rep
+    finally:
+        cam_log.disabled = was_disabled
 
     # frames: the lists, the pairs and the rate
     ts = seq.timestamps

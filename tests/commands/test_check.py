@@ -64,11 +64,12 @@ def test_what_a_run_would_refuse_is_an_error_and_exit_code_1(seqs, tmp_path, cap
     assert "unknown camera preset 'nope'" in capsys.readouterr().out
 
 
-def test_warnings_a_guessed_camera_partial_truth_and_a_gap(seqs, tmp_path, capsys):
+def test_warnings_a_guessed_camera_partial_truth_and_a_gap(seqs, tmp_path, capsys, caplog):
     guess = _copy(seqs["good"], tmp_path / "my_scene")
     assert main(["check", str(guess)]) == 0
     out = capsys.readouterr().out
     assert "! camera" in out and "a guess" in out and "(0 errors, 1 warning)" in out
+    assert "no camera.json" not in caplog.text  # said once, in the report
     assert main(["check", str(guess), "--camera", "default"]) == 0  # named: no guess
     assert "from --camera" in capsys.readouterr().out
     assert main(["check", str(seqs["gt_elsewhere"])]) == 0
