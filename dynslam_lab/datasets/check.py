@@ -6,7 +6,8 @@ ground truth that covers part of the run. :func:`check_sequence` reads what ``dy
 (the lists, the first frame, five depth images, the ground truth) and reports each part with a level:
 ``ok``, ``warning`` (the run starts, but read the line) or ``error`` (``dynslam run`` would refuse it).
 The errors are the run's own (:class:`~dynslam_lab.datasets.tum.DatasetError`, the image size against the
-camera, :func:`~dynslam_lab.datasets.depth_scale.check_depth_range`), so the two never disagree.
+camera by the run's rule, :func:`~dynslam_lab.datasets.depth_scale.check_depth_range`), so the two agree on what
+is refused.
 """
 
 from __future__ import annotations
