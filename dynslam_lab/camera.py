@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["PinholeCamera", "CAMERA_PRESETS", "camera_for_sequence"]
+__all__ = ["PinholeCamera", "CAMERA_PRESETS", "camera_for_sequence", "preset_from_name", "image_size_error"]
 
 
 @dataclass(frozen=True)
@@ -183,6 +183,26 @@ CAMERA_PRESETS: dict[str, PinholeCamera] = {
 _DEFAULT_SAID: set[str] = set()  # folders already warned about (camera_for_sequence's default)
 
 
+def preset_from_name(name: str) -> str | None:
+    """The preset a sequence folder's name picks: ``...bonn...`` -> ``bonn``, ``...freiburg3...`` or ``...fr3...`` ->
+    ``tum_fr3`` (1-3); None when it names none."""
+    name = name.lower()
+    if "bonn" in name:
+        return "bonn"
+    m = re.search(r"(?:freiburg|fr)([123])", name)
+    return f"tum_fr{m.group(1)}" if m else None
+
+
+def image_size_error(shape: tuple[int, ...], camera: PinholeCamera, where: str) -> str | None:
+    """The message for an image of ``shape`` (``(h, w, ...)``) that is not the ``camera``'s size (its intrinsics would
+    be wrong), naming ``where`` it came from; None when the sizes agree."""
+    h, w = shape[:2]
+    if (h, w) == (camera.height, camera.width):
+        return None
+    return (f"{where}: image is {w}x{h} but the camera '{camera.name}' is {camera.width}x{camera.height} "
+            "(its intrinsics would be wrong): fix camera.json or pass another --camera")
+
+
 def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None = None) -> PinholeCamera:
     """Pick the intrinsics of a sequence from its folder name.
 
@@ -201,12 +221,9 @@ def camera_for_sequence(path: str | Path, override: str | PinholeCamera | None =
     cam_json = path / "camera.json"
     if cam_json.is_file():
         return load_camera_json(cam_json)
-    name = path.name.lower()
-    if "bonn" in name:
-        return CAMERA_PRESETS["bonn"]
-    m = re.search(r"(?:freiburg|fr)([123])", name)
-    if m:
-        return CAMERA_PRESETS[f"tum_fr{m.group(1)}"]
+    preset = preset_from_name(path.name)
+    if preset is not None:
+        return CAMERA_PRESETS[preset]
     cam = CAMERA_PRESETS["default"]
     if str(path) not in _DEFAULT_SAID:  # once per folder: the intrinsics are a guess
         _DEFAULT_SAID.add(str(path))

@@ -13,15 +13,14 @@ is refused.
 from __future__ import annotations
 
 import logging
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..camera import CAMERA_PRESETS, PinholeCamera
-from .depth_scale import check_depth_range, sample_depth
-from .tum import DatasetError, TumSequence, associate, load_depth, read_file_list
+from ..camera import CAMERA_PRESETS, PinholeCamera, image_size_error, preset_from_name
+from .depth_scale import depth_range_error, sample_depth
+from .tum import DatasetError, TumSequence, associate, read_file_list
 
 __all__ = ["CheckItem", "SequenceCheck", "check_sequence"]
 
@@ -70,15 +69,13 @@ class SequenceCheck:
                 "items": [{"topic": i.topic, "level": i.level, "text": i.text} for i in self.items]}
 
 
-def _camera_source(root: Path, override) -> str:
+def _camera_source(root: Path, override) -> str | None:
+    """Where :func:`~dynslam_lab.camera.camera_for_sequence` takes the camera from, in its order; None: a guess."""
     if override is not None:
         return "--camera" if isinstance(override, str) else "the camera given"
     if (root / "camera.json").is_file():
         return "camera.json"
-    name = root.name.lower()
-    if "bonn" in name or re.search(r"(?:freiburg|fr)([123])", name):
-        return "the folder's name"
-    return None
+    return "the folder's name" if preset_from_name(root.name) is not None else None
 
 
 def _rate(ts: np.ndarray) -> tuple[float, float]:
@@ -147,38 +144,33 @@ def check_sequence(root: str | Path, camera: PinholeCamera | str | None = None, 
     except (DatasetError, OSError) as exc:
         rep.add("images", "error", f"frame 0: {exc}")
         return rep
-    h, w = f0.rgb.shape[:2]
-    if (h, w) != (cam.height, cam.width):
-        rep.add("images", "error", f"{f0.rgb_path or 'frame 0'}: image is {w}x{h} but the camera '{cam.name}' is "
-                                   f"{cam.width}x{cam.height} (its intrinsics would be wrong)")
+    error = image_size_error(f0.rgb.shape, cam, f0.rgb_path or "frame 0")  # the run's rule (runs.runner)
+    if error:
+        rep.add("images", "error", error)
     else:
-        rep.add("images", "ok", f"{w}x{h} colour and depth, as the camera")
+        rep.add("images", "ok", f"{cam.width}x{cam.height} colour and depth, as the camera")
 
     # depth: the scale
-    s = sample_depth(seq, k=5)
+    s = sample_depth(seq, k=5)  # what the run's check_depth_range samples and judges
+    error = depth_range_error(s, seq, min_depth, max_depth)
     if s.median_m is None:
         rep.add("depth", "error", f"no valid depth in the {len(s.paths) or 5} frames read")
+    elif error:
+        rep.add("depth", "error", error)
     else:
-        holes = []
-        for p in s.paths:
-            z = load_depth(p, cam.depth_scale)
-            holes.append(float((~(z > 0)).mean()))
-        try:
-            check_depth_range(seq, None, min_depth, max_depth)
-            rep.add("depth", "ok", f"median {s.median_m:.2f} m over {len(s.paths)} frames ({s.median_units:.0f} units at "
-                                   f"{cam.depth_scale:g} per metre), inside tracking's {min_depth:g}-{max_depth:g} m; "
-                                   f"{100 * np.mean(holes):.0f} % of pixels without depth")
-        except DatasetError as exc:
-            rep.add("depth", "error", str(exc))
+        rep.add("depth", "ok", f"median {s.median_m:.2f} m over {len(s.paths)} frames ({s.median_units:.0f} units at "
+                               f"{cam.depth_scale:g} per metre), inside tracking's {min_depth:g}-{max_depth:g} m; "
+                               f"{100 * s.no_depth_share:.0f} % of pixels without depth")
 
     # ground truth: how much of the run it covers
     gt = seq.groundtruth
     if gt is None:
         rep.add("truth", "ok", "no groundtruth.txt: the run will not be evaluated (no ATE, RPE)")
     else:
-        covered = sum(seq.gt_pose(i) is not None for i in range(len(seq)))
+        poses = [T for T in (seq.gt_pose(i) for i in range(len(seq))) if T is not None]
+        covered = len(poses)
         g_step, _ = _rate(gt.timestamps)
-        P = np.array([seq.gt_pose(i)[:3, 3] for i in range(len(seq)) if seq.gt_pose(i) is not None])
+        P = np.array([T[:3, 3] for T in poses])
         path = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
         level = "ok" if covered >= 0.5 * len(seq) else "warning"
         text = (f"{len(gt)} poses" + (f" at {1.0 / g_step:.0f} Hz" if g_step > 0 else "") +

@@ -34,7 +34,7 @@ import numpy as np
 
 from .tum import DatasetError, load_depth
 
-__all__ = ["DepthSample", "sample_depth", "check_depth_range", "ScaleCheck", "depth_scale_from_trajectory"]
+__all__ = ["DepthSample", "sample_depth", "depth_range_error", "check_depth_range", "ScaleCheck", "depth_scale_from_trajectory"]
 
 COMMON_SCALES = (1000.0, 5000.0)  # units per metre of the usual 16-bit depth files: millimetres, TUM/Bonn
 
@@ -48,12 +48,14 @@ class DepthSample:
     median_units : the same in the file's integer units.
     paths : the depth images read (unreadable ones are left out: the run reports them).
     depth_scale : units per metre used.
+    no_depth_share : mean share of those images' pixels without depth (nan when none was read).
     """
 
     median_m: float | None
     median_units: float | None
     paths: tuple[Path, ...]
     depth_scale: float
+    no_depth_share: float = float("nan")
 
 
 def sample_depth(sequence, n_frames: int | None = None, k: int = 5) -> DepthSample:
@@ -64,25 +66,43 @@ def sample_depth(sequence, n_frames: int | None = None, k: int = 5) -> DepthSamp
     if n <= 0 or k < 1:
         return DepthSample(None, None, (), scale)
     idx = np.unique(np.linspace(0, n - 1, min(k, n)).round().astype(int))
-    medians, paths = [], []
+    medians, paths, holes = [], [], []
     for i in idx:
         path = sequence.depth_path(int(i))
         try:
             z = load_depth(path, scale)
         except (DatasetError, OSError):
             continue  # the run reports the frame
-        valid = z[np.isfinite(z) & (z > 0)]
-        if valid.size:
-            medians.append(float(np.median(valid)))
+        has = np.isfinite(z) & (z > 0)
+        if has.any():
+            medians.append(float(np.median(z[has])))
             paths.append(Path(path))
+            holes.append(1.0 - float(has.mean()))
     if not medians:
         return DepthSample(None, None, tuple(paths), scale)
     m = float(np.median(medians))
-    return DepthSample(m, m * scale, tuple(paths), scale)
+    return DepthSample(m, m * scale, tuple(paths), scale, float(np.mean(holes)))
 
 
 def _at_common_scales(units: float) -> str:
     return ", ".join(f"{units / s:.2f} m at {s:g}" for s in COMMON_SCALES)
+
+
+def depth_range_error(sample: DepthSample, sequence, min_depth: float, max_depth: float) -> str | None:
+    """The message when ``sample`` (of ``sequence``: :func:`sample_depth`) lies outside ``[min_depth, max_depth]``
+    metres, naming the first image read, the scale, the median in metres and in file units, what those units would
+    be at 1000 and 5000 units per metre, and where to set the scale; None inside (or without depth)."""
+    s = sample
+    if s.median_m is None or min_depth <= s.median_m <= max_depth:
+        return None
+    where = Path(getattr(sequence, "root", s.paths[0].parent))
+    return (
+        f"{s.paths[0]}: the depth images read as {s.median_m:.2f} m (median of {len(s.paths)} frames at depth_scale "
+        f"{s.depth_scale:g} units per metre, camera '{sequence.camera.name}'), outside the {min_depth:g}-{max_depth:g} m "
+        f"that tracking uses (tracking.min_depth, tracking.max_depth): the depth scale is likely wrong. "
+        f"The median, {s.median_units:.0f} units, would be {_at_common_scales(s.median_units)} units per metre; "
+        f"set depth_scale in {where / 'camera.json'} (or pass --camera), or set tracking.min_depth / tracking.max_depth "
+        f"(--config) for a sensor of another range")
 
 
 def check_depth_range(sequence, n_frames: int | None, min_depth: float, max_depth: float, k: int = 5) -> DepthSample:
@@ -92,20 +112,13 @@ def check_depth_range(sequence, n_frames: int | None, min_depth: float, max_dept
     Raises
     ------
     DatasetError
-        Names the first image read, the scale, the median in metres and in file units, what those units
-        would be at 1000 and 5000 units per metre, and where to set the scale.
+        :func:`depth_range_error`'s message.
     """
     s = sample_depth(sequence, n_frames, k)
-    if s.median_m is None or min_depth <= s.median_m <= max_depth:
-        return s
-    where = Path(getattr(sequence, "root", s.paths[0].parent))
-    raise DatasetError(
-        f"{s.paths[0]}: the depth images read as {s.median_m:.2f} m (median of {len(s.paths)} frames at depth_scale "
-        f"{s.depth_scale:g} units per metre, camera '{sequence.camera.name}'), outside the {min_depth:g}-{max_depth:g} m "
-        f"that tracking uses (tracking.min_depth, tracking.max_depth): the depth scale is likely wrong. "
-        f"The median, {s.median_units:.0f} units, would be {_at_common_scales(s.median_units)} units per metre; "
-        f"set depth_scale in {where / 'camera.json'} (or pass --camera), or set tracking.min_depth / tracking.max_depth "
-        f"(--config) for a sensor of another range")
+    error = depth_range_error(s, sequence, min_depth, max_depth)
+    if error:
+        raise DatasetError(error)
+    return s
 
 
 @dataclass(frozen=True)

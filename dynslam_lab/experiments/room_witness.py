@@ -99,16 +99,22 @@ def bounding_planes(P: np.ndarray, labels: np.ndarray, tol_m: float = 0.01, tol_
     return out
 
 
+def _centred_points(depth: np.ndarray, camera, stride: int, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The camera points of ``depth``'s pixels at the centres of ``stride`` x ``stride`` cells with a reading (and
+    in ``keep``, full size, when given), and ``(rows, cols)`` bool: which cells gave one."""
+    h, w = depth.shape
+    v, u = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
+    z = depth[v, u]
+    ok = z > 0 if keep is None else (z > 0) & keep[v, u]
+    return camera.backproject(np.column_stack([u[ok], v[ok]]).astype(np.float64), z[ok].astype(np.float64)), ok
+
+
 def plane_pixels(depth: np.ndarray, camera, shape: tuple[int, int], stride: int = 4, margin: int = 3) -> np.ndarray:
     """``shape`` bool: the pixels (of an image of ``shape``, a reduction of ``depth``'s) on the large planes of
     ``depth`` that bound the scene (:func:`large_planes`, :func:`bounding_planes`, on every ``stride``-th pixel;
     single cells off the planes closed), at least ``margin`` px of ``shape`` from every pixel that is not."""
-    h, w = depth.shape
-    v, u = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
-    z = depth[v, u]
-    ok = z > 0
-    P = camera.backproject(np.column_stack([u[ok], v[ok]]).astype(np.float64), z[ok].astype(np.float64))
-    grid = np.zeros(z.shape, np.uint8)
+    P, ok = _centred_points(depth, camera, stride)
+    grid = np.zeros(ok.shape, np.uint8)
     grid[ok] = bounding_planes(P, large_planes(P)) > 0
     # single cells off the planes inside them are depth noise (or a missing reading), not an object: closed
     grid = cv2.morphologyEx(grid, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
@@ -140,11 +146,7 @@ def witness(frame, past, T_c_p: np.ndarray, camera, keep_frame: np.ndarray, keep
     level = image_level(frame.gray, frame.depth, camera, scale)
     photo = photometric_term(level, ref, np.eye(4), sigma, exclude=~keep_frame)
     grid = vertex_normal_grid(np.where(level_mask(keep_past, past.depth.shape), past.depth, 0), camera, stride)
-    full_keep = level_mask(keep_frame, frame.depth.shape)
-    v, u = np.mgrid[stride // 2:frame.depth.shape[0]:stride, stride // 2:frame.depth.shape[1]:stride]
-    z = frame.depth[v, u]
-    ok = (z > 0) & full_keep[v, u]
-    X = camera.backproject(np.column_stack([u[ok], v[ok]]).astype(np.float64), z[ok].astype(np.float64))
+    X, _ = _centred_points(frame.depth, camera, stride, level_mask(keep_frame, frame.depth.shape))
     term = DenseTerm(X, 1.5 * depth_sigma(X[:, 2]), grid, np.eye(4), camera, max_distance=0.1, T_prior=T_c_p,
                      prior_sigma=(0.5, 20.0))
     result = align_depth(term, T_c_p, iterations, 2.0, photometric=photo).T_c_w

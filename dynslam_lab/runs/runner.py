@@ -34,6 +34,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from ..camera import image_size_error
 from ..config import config_to_dict
 from ..datasets.depth_scale import check_depth_range, depth_scale_from_trajectory
 from ..datasets.prefetch import FramePrefetcher, PrefetchConfig
@@ -89,11 +90,9 @@ def _error_shape(message: str) -> str:
 
 def _check_size(frame, camera) -> None:
     """A frame of another size than the camera would be tracked with the wrong intrinsics."""
-    h, w = frame.rgb.shape[:2]
-    if (h, w) != (camera.height, camera.width):
-        where = frame.rgb_path or f"frame {frame.index}"
-        raise ValueError(f"{where}: image is {w}x{h} but the camera '{camera.name}' is {camera.width}x{camera.height} "
-                         "(its intrinsics would be wrong): fix camera.json or pass another --camera")
+    error = image_size_error(frame.rgb.shape, camera, frame.rgb_path or f"frame {frame.index}")
+    if error:
+        raise ValueError(error)
 
 
 @contextmanager
