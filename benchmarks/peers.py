@@ -26,10 +26,19 @@ counted). ``wall_s`` is the whole process (start-up, vocabulary, decoding).
 Ratios are to the reference peer on the same sequence (``--reference``, default the first
 peer of ``--peers`` that ran): ``ate_ratio`` < 1 means a smaller error than the peer.
 
-Writes ``OUT/peers.csv`` (one row per sequence and system), ``OUT/peers.md`` (the tables),
+``--rounds N`` runs every system N times on each sequence, the systems in turn within a round and in
+the reverse order in every second round (so that none always runs first, on a cold machine, or last,
+after the others warmed it). Each round's ratios are to the same round's reference run, taken back to
+back; the table gives the median over the rounds of each value and of each ratio, and the smallest and
+largest ms ratio (``mean_ms_ratio_min``, ``mean_ms_ratio_max``): on a shared 2-core machine one run's
+ratio moves by about 0.1, so a speed claim reads the median and the range. ``peers_rounds.csv`` keeps
+every run.
+
+Writes ``OUT/peers.csv`` (one row per sequence and system; with ``--rounds`` the medians),
+``OUT/peers_rounds.csv`` (with ``--rounds`` > 1: one row per run), ``OUT/peers.md`` (the tables),
 ``OUT/bars.png`` (per-sequence bars of ATE, RPE and ms per frame), ``OUT/trajectories_SEQ.png``
 (each system's aligned trajectory over the ground truth) and ``OUT/runs/SEQ/SYSTEM/`` (each
-run's folder and ``.log``). ORB-SLAM3 needs an ORB vocabulary in DBoW2 text format: by default
+run's folder and ``.log``; ``OUT/runs/SEQ/roundK/SYSTEM/`` with ``--rounds``). ORB-SLAM3 needs an ORB vocabulary in DBoW2 text format: by default
 the toolkit's vocabulary exported with ``dynslam vocab export VOC.npz --format dbow2``, or
 ``--orb-vocabulary ORBvoc.txt``.
 
@@ -38,6 +47,7 @@ Usage::
     python benchmarks/peers.py static_xyz walking_rpy --max-frames 300 --out /tmp/peers
     python benchmarks/peers.py SEQDIR... --detector onnx:yolox_nano.onnx --out DIR
     python benchmarks/peers.py SEQDIR --peers orbslam3 --orb-vocabulary ORBvoc.txt --out DIR
+    python benchmarks/peers.py walking_xyz static_xyz --filters none,full --peers orbslam3 --rounds 3 --out DIR
 
 A SEQDIR that is not a folder but a synthetic preset name (``dynslam synth --list``) is
 rendered first, with ``--max-frames`` frames (default 300).
@@ -78,7 +88,13 @@ COLUMNS = (
     "sequence", "system", "kind", "status", "frames", "tracked", "lost", "coverage", "loops",
     "ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "mean_ms", "median_ms", "wall_s",
     "ate_ratio", "rpe_trans_ratio", "mean_ms_ratio", "reference", "run_dir",
+    "rounds", "mean_ms_ratio_min", "mean_ms_ratio_max",
 )
+#: Columns of ``peers_rounds.csv`` (one row per run, ``--rounds`` > 1).
+ROUND_COLUMNS = ("round",) + COLUMNS[: COLUMNS.index("rounds")]
+#: Numeric columns a row of several rounds takes the median of.
+_MEDIAN = ("frames", "tracked", "lost", "coverage", "loops", "ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg",
+           "mean_ms", "median_ms", "wall_s", "ate_ratio", "rpe_trans_ratio", "mean_ms_ratio")
 #: The per-frame time compared, by kind of system, both from the files to the pose: dynslam's ``wall`` (the
 #: frame's whole time in the run loop: ``System.process`` plus the wait for the frame, i.e. its decoding and
 #: ORB extraction where the read-ahead thread did not hide them), a peer's decoding plus its track call.
@@ -317,10 +333,10 @@ def collect(spec: SystemSpec, seqdir: Path, rundir: Path, status: str, wall: flo
 
 def add_ratios(rows: list[dict], reference: str | None, peer_order: list[str]) -> list[dict]:
     """Fill ``ate_ratio``, ``rpe_trans_ratio``, ``mean_ms_ratio``: each row's value over the
-    reference peer's on the same sequence (``reference``, or the first of ``peer_order`` that
-    ran there). Rows of a sequence without a reference keep NaN."""
-    for seq in dict.fromkeys(r["sequence"] for r in rows):
-        here = {r["system"]: r for r in rows if r["sequence"] == seq}
+    reference peer's on the same sequence and in the same round (``reference``, or the first of
+    ``peer_order`` that ran there). Rows of a sequence without a reference keep NaN."""
+    for seq, rnd in dict.fromkeys((r["sequence"], r.get("round", 1)) for r in rows):
+        here = {r["system"]: r for r in rows if r["sequence"] == seq and r.get("round", 1) == rnd}
         candidates = [reference] if reference else peer_order
         ref = next((here[n] for n in candidates if n in here and here[n]["status"] == "ok"), None)
         if ref is None:
@@ -331,6 +347,29 @@ def add_ratios(rows: list[dict], reference: str | None, peer_order: list[str]) -
                 a, b = float(r[col]), float(ref[col])
                 r[ratio] = a / b if r["status"] == "ok" and math.isfinite(a) and math.isfinite(b) and b > 0 else float("nan")
     return rows
+
+
+def combine_rounds(rows: list[dict]) -> list[dict]:
+    """One row per sequence and system from the rows of every round (``add_ratios`` done per round): the
+    median over the rounds that ran of each value in ``_MEDIAN`` (ratios included: the median of the
+    rounds' own ratios), ``rounds`` the number of them, ``mean_ms_ratio_min`` and ``_max`` their range; the
+    run folder and reference of the first. A system that ran in no round keeps its first failure."""
+    out = []
+    for key in dict.fromkeys((r["sequence"], r["system"]) for r in rows):
+        runs = [r for r in rows if (r["sequence"], r["system"]) == key]
+        ok = [r for r in runs if r["status"] == "ok"]
+        row = dict(ok[0] if ok else runs[0])
+        row.pop("round", None)
+        row["rounds"] = len(ok)
+        for c in _MEDIAN:
+            vals = [float(r[c]) for r in ok if r[c] is not None and math.isfinite(float(r[c]))]
+            m = float(np.median(vals)) if vals else float("nan")
+            row[c] = int(m) if c in ("frames", "tracked", "lost", "loops") and m.is_integer() else m
+        ratios = [float(r["mean_ms_ratio"]) for r in ok if math.isfinite(float(r["mean_ms_ratio"]))]
+        row["mean_ms_ratio_min"] = min(ratios) if ratios else float("nan")
+        row["mean_ms_ratio_max"] = max(ratios) if ratios else float("nan")
+        out.append(row)
+    return out
 
 
 # ----------------------------------------------------------------------------------- tables
@@ -361,19 +400,28 @@ def pivot_markdown(rows: list[dict], column: str, digits: int) -> list[str]:
     return out
 
 
-def table_markdown(rows: list[dict], header: str = "") -> str:
-    """``peers.md``: ATE, RPE and ms per frame as the papers' tables, then every measurement."""
+def table_markdown(rows: list[dict], header: str = "", failed_rounds: list[str] = ()) -> str:
+    """``peers.md``: ATE, RPE and ms per frame as the papers' tables, then every measurement (with several
+    rounds, the medians and the range of the ms ratio; ``failed_rounds`` lists the runs of a round that
+    failed while another round of the same system ran)."""
     lines = ["# dynslam and its peers", ""]
     if header:
         lines += [header, ""]
+    several = any(int(r.get("rounds") or 0) > 1 for r in rows)
+    if several:
+        lines += [f"Medians over {max(int(r.get('rounds') or 0) for r in rows)} rounds; each round's ratios are to "
+                  "its own reference run; the ms ratio's range over the rounds in `mean_ms_ratio_min` and `_max`.", ""]
     for title, col, digits in (("ATE RMSE (m)", "ate_rmse_m", 4), ("RPE translation RMSE (m, 1 frame)", "rpe_trans_rmse_m", 4),
                                ("RPE rotation RMSE (deg, 1 frame)", "rpe_rot_rmse_deg", 3),
                                ("Mean ms per frame", "mean_ms", 1)):
         lines += [f"## {title}", ""] + pivot_markdown(rows, col, digits) + [""]
     cols = ("sequence", "system", "frames", "lost", "loops", "ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg",
             "mean_ms", "median_ms", "wall_s", "ate_ratio", "rpe_trans_ratio", "mean_ms_ratio")
+    if several:
+        cols += ("mean_ms_ratio_min", "mean_ms_ratio_max", "rounds")
     digits = {"ate_rmse_m": 4, "rpe_trans_rmse_m": 4, "rpe_rot_rmse_deg": 3, "mean_ms": 1, "median_ms": 1,
-              "wall_s": 1, "ate_ratio": 2, "rpe_trans_ratio": 2, "mean_ms_ratio": 2}
+              "wall_s": 1, "ate_ratio": 2, "rpe_trans_ratio": 2, "mean_ms_ratio": 2, "mean_ms_ratio_min": 2,
+              "mean_ms_ratio_max": 2}
     lines += ["## All measurements", "",
               "Ratios are to the reference peer on the same sequence (`reference` in peers.csv).", "",
               "| " + " | ".join(cols) + " |", "|---" * len(cols) + "|"]
@@ -384,18 +432,19 @@ def table_markdown(rows: list[dict], header: str = "") -> str:
             continue
         lines.append("| " + " | ".join(_label(rows, r[c]) if c == "system" else _fmt(r[c], digits.get(c, 0))
                                       for c in cols) + " |")
+    notes += list(failed_rounds)
     if notes:
         lines += ["", "Not measured:", ""] + notes
     return "\n".join(lines) + "\n"
 
 
-def write_csv(rows: list[dict], path: Path) -> None:
+def write_csv(rows: list[dict], path: Path, columns: tuple[str, ...] = COLUMNS) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with tmp.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(COLUMNS), extrasaction="ignore", lineterminator="\n")
+        w = csv.DictWriter(fh, fieldnames=list(columns), extrasaction="ignore", lineterminator="\n")
         w.writeheader()
         for r in rows:
-            w.writerow({c: ("" if isinstance(r[c], float) and not math.isfinite(r[c]) else r[c]) for c in COLUMNS})
+            w.writerow({c: ("" if isinstance(r[c], float) and not math.isfinite(r[c]) else r[c]) for c in columns})
     os.replace(tmp, path)
 
 
@@ -504,25 +553,34 @@ def resolve_sequences(items: list[str], max_frames: int | None) -> list[Path]:
 
 def run_benchmark(seqdirs: list[Path], specs: list[SystemSpec], out: Path, max_frames: int | None = None,
                   reference: str | None = None, timeout: float | None = None, reuse: bool = False,
-                  plots: bool = True, header: str = "") -> list[dict]:
+                  plots: bool = True, header: str = "", rounds: int = 1) -> list[dict]:
     """Run every system on every sequence (back to back per sequence), evaluate, write the tables.
 
+    ``rounds`` > 1: each sequence that many times over, the systems in reverse order in every second
+    round, each round's runs in ``runs/SEQ/roundK/``; ``peers.csv`` holds the medians
+    (:func:`combine_rounds`), ``peers_rounds.csv`` every run.
     ``reuse``: a run folder that already holds a finished run is read, not run again; without it
     an existing run folder is an error (nothing is overwritten). Returns the rows of ``peers.csv``.
     """
+    if rounds < 1:
+        raise ValueError(f"run_benchmark: rounds must be >= 1, got {rounds}")
     out.mkdir(parents=True, exist_ok=True)
     labels = [sequence_label(s) for s in seqdirs]
     if len(set(labels)) != len(labels):
         raise SystemExit(f"error: two sequences share a name: {labels}")
-    plan = [(seq, label, spec, out / "runs" / label / spec.slug) for seq, label in zip(seqdirs, labels) for spec in specs]
+    plan = []  # (round, sequence, label, spec, run folder), in the order run
+    for seq, label in zip(seqdirs, labels):
+        for k in range(1, rounds + 1):
+            where = out / "runs" / label if rounds == 1 else out / "runs" / label / f"round{k}"
+            plan += [(k, seq, label, spec, where / spec.slug) for spec in (specs if k % 2 else specs[::-1])]
     if not reuse:
         taken = [str(d) for *_, d in plan if d.exists()]
         if taken:
             raise SystemExit(f"error: run folders exist already: {taken[0]} (and {len(taken) - 1} more); "
                              "pass --reuse to keep finished runs, or choose another --out")
-    raw: list[tuple[SystemSpec, Path, Path, str, float]] = []
+    raw: list[tuple[int, SystemSpec, Path, Path, str, float]] = []
     warmed: set[Path] = set()
-    for k, (seq, label, spec, rundir) in enumerate(plan, 1):
+    for k, (rnd, seq, label, spec, rundir) in enumerate(plan, 1):
         done = rundir / ("summary.json" if spec.kind == "dynslam" else "peer.json")
         if spec.skip:
             status, wall = spec.skip, float("nan")
@@ -533,13 +591,22 @@ def run_benchmark(seqdirs: list[Path], specs: list[SystemSpec], out: Path, max_f
                 warm_page_cache(seq)
                 warmed.add(seq)
             status, wall = run_system(spec, seq, rundir, max_frames, timeout)
-        print(f"[{k}/{len(plan)}] {label} / {spec.name}: {status}" + ("" if math.isnan(wall) else f" ({wall:.1f} s)"),
-              flush=True)
-        raw.append((spec, seq, rundir, status, wall))
-    rows = [collect(spec, seq, rundir, status, wall) for spec, seq, rundir, status, wall in raw]
-    add_ratios(rows, reference, [s.name for s in specs if s.kind == "peer"])
+        print(f"[{k}/{len(plan)}] {label}" + (f" round {rnd}" if rounds > 1 else "") + f" / {spec.name}: {status}"
+              + ("" if math.isnan(wall) else f" ({wall:.1f} s)"), flush=True)
+        raw.append((rnd, spec, seq, rundir, status, wall))
+    order = {spec.name: i for i, spec in enumerate(specs)}
+    raw.sort(key=lambda x: (labels.index(sequence_label(x[2])), x[0], order[x[1].name]))  # the table's order
+    per_run = [dict(collect(spec, seq, rundir, status, wall), round=rnd) for rnd, spec, seq, rundir, status, wall in raw]
+    add_ratios(per_run, reference, [s.name for s in specs if s.kind == "peer"])
+    rows = combine_rounds(per_run)
+    failed = []
+    if rounds > 1:
+        write_csv(per_run, out / "peers_rounds.csv", ROUND_COLUMNS)
+        failed = [f"- {r['sequence']} / {_label(per_run, r['system'])}, round {r['round']}: {r['status']}"
+                  for r in per_run if r["status"] != "ok" and any(
+                      q["status"] == "ok" for q in per_run if (q["sequence"], q["system"]) == (r["sequence"], r["system"]))]
     write_csv(rows, out / "peers.csv")
-    md = table_markdown(rows, header)
+    md = table_markdown(rows, header, failed)
     (out / "peers.md").write_text(md)
     if plots:
         import matplotlib
@@ -583,9 +650,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=None, metavar="S", help="stop a run after S seconds")
     ap.add_argument("--reuse", action="store_true", help="read finished runs already in OUT instead of running them again")
     ap.add_argument("--no-plots", action="store_true", help="tables only")
+    ap.add_argument("--rounds", type=int, default=1, metavar="N",
+                    help="run every system N times per sequence, in alternating order; medians and the ms ratio's range (default 1)")
     args = ap.parse_args(argv)
     if args.max_frames is not None and args.max_frames < 2:
         ap.error(f"--max-frames must be >= 2, got {args.max_frames}")
+    if args.rounds < 1:
+        ap.error(f"--rounds must be >= 1, got {args.rounds}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     seqdirs = resolve_sequences(args.seqdirs, args.max_frames)
@@ -598,13 +669,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{s.label}: {s.skip}")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     header = (f"{len(seqdirs)} sequence(s), {args.max_frames or 'all'} frames; detector `{args.detector}`; "
-              f"{os.cpu_count()} CPU cores, load average {load:.2f} at the start; runs back to back per sequence; "
+              f"{os.cpu_count()} CPU cores, load average {load:.2f} at the start; runs back to back per sequence"
+              + (f", {args.rounds} rounds in alternating order" if args.rounds > 1 else "") + "; "
               "ms per frame from the PNG files to the pose (decoding included) for every system.")
     rows = run_benchmark(seqdirs, specs, out, args.max_frames, args.reference, args.timeout, args.reuse,
-                         not args.no_plots, header)
+                         not args.no_plots, header, args.rounds)
     print()
     print((out / "peers.md").read_text())
-    print(f"wrote {out / 'peers.csv'}, {out / 'peers.md'}" + ("" if args.no_plots else f", {out / 'bars.png'}"))
+    print(f"wrote {out / 'peers.csv'}" + (f", {out / 'peers_rounds.csv'}" if args.rounds > 1 else "")
+          + f", {out / 'peers.md'}" + ("" if args.no_plots else f", {out / 'bars.png'}"))
     return 0 if any(r["status"] == "ok" for r in rows) else 1
 
 

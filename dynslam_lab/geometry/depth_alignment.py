@@ -389,17 +389,15 @@ def image_level(gray: np.ndarray, depth: np.ndarray, camera: PinholeCamera, scal
     gx = cv2.Sobel(I, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
     gy = cv2.Sobel(I, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
     d = np.asarray(depth, np.float32)[: h * s, : w * s]
-    valid = np.isfinite(d) & (d > 0)
-    d = np.where(valid, d, np.float32(0))
+    d = np.where(np.isfinite(d) & (d > 0), d, np.float32(0))
     # block statistics with OpenCV (a strided numpy reduction over (h, s, w, s) costs ~5x more): the max and min
     # over the s x s window whose top-left corner is each block's, the mean by area averaging; a block counts
-    # only when every pixel has depth
+    # only when every pixel has depth, i.e. when its minimum is above 0 (missing depth was set to 0 just above)
     k = np.ones((s, s), np.uint8)
     hi = cv2.dilate(d, k, anchor=(0, 0))[::s, ::s]
     lo = cv2.erode(d, k, anchor=(0, 0))[::s, ::s]
     mean = cv2.resize(d, (w, h), interpolation=cv2.INTER_AREA) if s > 1 else d
-    full = (cv2.resize(valid.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) if s > 1 else valid) >= 1 - 1e-6
-    z = np.where(full & (hi - lo <= max_depth_spread * mean), mean, np.float32(np.nan))
+    z = np.where((lo > 0) & (hi - lo <= max_depth_spread * mean), mean, np.float32(np.nan))
     return ImageLevel(I, gx, gy, z, camera.scaled(1.0 / s), s)
 
 

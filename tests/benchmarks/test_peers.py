@@ -171,6 +171,7 @@ if "--check" in args:
     print(CHECK or "fakelib 1.0")
     sys.exit(3 if CHECK else 0)
 seq, out = Path(args[0]), Path(args[args.index("--out") + 1])
+MS = {round_ms!r}.get(out.parent.name, MS)  # peers.py --rounds: runs/SEQ/roundK/NAME
 out.mkdir(parents=True)
 rows = [l.split() for l in (seq / "groundtruth.txt").read_text().splitlines() if l and not l.startswith("#")]
 lines, lost, times = [], [], []
@@ -191,8 +192,8 @@ json.dump({{"peer": "fake", "frames": n, "tracked": n - len(lost), "lost": len(l
 """
 
 
-def _fake_peer(path: Path, radius=1.0, drop=(), ms=(10.0,), check="", fail=False) -> Path:
-    text = FAKE_PEER.format(radius=radius, drop=list(drop), ms=list(ms), check=check)
+def _fake_peer(path: Path, radius=1.0, drop=(), ms=(10.0,), check="", fail=False, round_ms=None) -> Path:
+    text = FAKE_PEER.format(radius=radius, drop=list(drop), ms=list(ms), check=check, round_ms=dict(round_ms or {}))
     if fail:
         text = text.replace("out.mkdir(parents=True)", "out.mkdir(parents=True); sys.exit('fake peer crashed')")
     path.write_text(text)
@@ -256,6 +257,40 @@ def test_table_of_fake_peers_matches_hand_computed_errors(tmp_path):
         again = list(csv.DictReader(fh))
     assert len(again) == 1 and again[0]["ate_rmse_m"] == ra["ate_rmse_m"]
     assert float(again[0]["wall_s"]) == pytest.approx(float(ra["wall_s"]), abs=1e-3)  # from the run's log
+
+
+def test_rounds_alternate_the_order_and_give_the_median_of_each_rounds_own_ratio(tmp_path, capsys):
+    seq = _circle_sequence(tmp_path / "circle")
+    # the reference takes 10, 20, 40 ms a frame in rounds 1-3; the other 15, 20, 100: ratios 1.5, 1.0, 2.5
+    a = _fake_peer(tmp_path / "a.py", radius=1.01, round_ms={"round1": [10.0], "round2": [20.0], "round3": [40.0]})
+    b = _fake_peer(tmp_path / "b.py", radius=1.02, round_ms={"round1": [15.0], "round2": [20.0], "round3": [100.0]})
+    out = tmp_path / "out"
+    code = peers.main([str(seq), "--out", str(out), "--filters", "", "--peers", "a,b", "--rounds", "3", "--no-plots",
+                       "--peer-script", f"a={a}", "--peer-script", f"b={b}"])
+    assert code == 0
+    printed = [s for s in capsys.readouterr().out.splitlines() if s.startswith("[")]
+    assert [s.split("] ")[1].split(":")[0] for s in printed] == [
+        "circle round 1 / a", "circle round 1 / b", "circle round 2 / b", "circle round 2 / a",
+        "circle round 3 / a", "circle round 3 / b"]
+    with (out / "peers.csv").open() as fh:
+        rows = {r["system"]: r for r in csv.DictReader(fh)}
+    ra, rb = rows["a"], rows["b"]
+    assert int(ra["rounds"]) == int(rb["rounds"]) == 3
+    assert float(ra["mean_ms"]) == 20.0 and float(rb["mean_ms"]) == 20.0  # the medians of the runs
+    # the median of the rounds' own ratios (1.5), not the ratio of the medians (1.0)
+    assert float(rb["mean_ms_ratio"]) == pytest.approx(1.5)
+    assert float(rb["mean_ms_ratio_min"]) == pytest.approx(1.0) and float(rb["mean_ms_ratio_max"]) == pytest.approx(2.5)
+    assert float(rb["ate_ratio"]) == pytest.approx(2.0, rel=1e-6) and float(rb["ate_rmse_m"]) == pytest.approx(0.02)
+    with (out / "peers_rounds.csv").open() as fh:
+        runs = list(csv.DictReader(fh))
+    assert [(r["round"], r["system"]) for r in runs] == [("1", "a"), ("1", "b"), ("2", "a"), ("2", "b"), ("3", "a"), ("3", "b")]
+    assert [float(r["mean_ms_ratio"]) for r in runs if r["system"] == "b"] == pytest.approx([1.5, 1.0, 2.5])
+    assert all((out / "runs" / "circle" / f"round{k}" / n / "peer.json").is_file() for k in (1, 2, 3) for n in "ab")
+    md = (out / "peers.md").read_text()
+    assert "Medians over 3 rounds" in md and "| 1.50 | 1.00 | 2.50 | 3 |" in md
+    with pytest.raises(SystemExit):
+        peers.main([str(seq), "--out", str(tmp_path / "o2"), "--filters", "", "--peers", "a", "--rounds", "0",
+                    "--peer-script", f"a={a}"])
 
 
 def test_missing_or_failing_peer_is_reported_and_the_rest_runs(tmp_path, capsys):

@@ -343,6 +343,11 @@ def test_image_level_depth_is_the_block_mean_and_none_across_a_depth_edge():
     wide = depth.copy()
     wide[4:, 3] = 2.2  # 20 cm across the block: a depth edge
     assert np.isnan(image_level(np.zeros((8, 8), np.uint8), wide, CAM, 2).z[2, 1])
+    odd = depth.copy()
+    odd[1, 7], odd[7, 6], odd[6, 0] = np.nan, -1.0, np.inf  # unreadable values count as missing, like 0
+    z = image_level(np.zeros((8, 8), np.uint8), odd, CAM, 2).z
+    assert np.isnan(z[0, 3]) and np.isnan(z[3, 3]) and np.isnan(z[3, 0])
+    assert int(np.isnan(z).sum()) == 4  # those three blocks and the one with the 0
 
 
 def test_photometric_jacobian_matches_finite_differences():
