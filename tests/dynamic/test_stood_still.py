@@ -28,7 +28,7 @@ def test_a_cart_that_stood_still_and_starts_slowly_is_flagged_and_not_followed(p
     """``prior_share``: ``orb.prior_region_share``; 1 = the plain extraction, 0.25 (the default) = the cart's region
     of frame t - 2 keeps a quarter of its share of keypoints (docs/robustness.md, "ORB budget")."""
     seq = TumSequence(synthetic_sequence(stress.random_scene_preset(109, name="random_109", n_frames=N_FRAMES)))
-    cfg = Config()  # the room test is on by default, the held surfaces off (docs/robustness.md)
+    cfg = Config()  # the room test is on by default, the held surfaces for 3 frames (docs/robustness.md)
     cfg = replace(cfg, orb=replace(cfg.orb, prior_region_share=prior_share))
     system = build_pipeline(cfg, seq.camera, detector="none", filters="geometry", loop_closing=False)
     T0 = None
