@@ -568,19 +568,21 @@ def run_benchmark(seqdirs: list[Path], specs: list[SystemSpec], out: Path, max_f
     labels = [sequence_label(s) for s in seqdirs]
     if len(set(labels)) != len(labels):
         raise SystemExit(f"error: two sequences share a name: {labels}")
-    plan = []  # (round, sequence, label, spec, run folder), in the order run
-    for seq, label in zip(seqdirs, labels):
+    order = {spec.name: i for i, spec in enumerate(specs)}
+    plan = []  # (table position, round, sequence, label, spec, run folder), in the order run
+    for si, (seq, label) in enumerate(zip(seqdirs, labels)):
         for k in range(1, rounds + 1):
             where = out / "runs" / label if rounds == 1 else out / "runs" / label / f"round{k}"
-            plan += [(k, seq, label, spec, where / spec.slug) for spec in (specs if k % 2 else specs[::-1])]
+            plan += [((si, k, order[spec.name]), k, seq, label, spec, where / spec.slug)
+                     for spec in (specs if k % 2 else specs[::-1])]
     if not reuse:
         taken = [str(d) for *_, d in plan if d.exists()]
         if taken:
             raise SystemExit(f"error: run folders exist already: {taken[0]} (and {len(taken) - 1} more); "
                              "pass --reuse to keep finished runs, or choose another --out")
-    raw: list[tuple[int, SystemSpec, Path, Path, str, float]] = []
+    raw: list[tuple[tuple[int, int, int], int, SystemSpec, Path, Path, str, float]] = []
     warmed: set[Path] = set()
-    for k, (rnd, seq, label, spec, rundir) in enumerate(plan, 1):
+    for k, (pos, rnd, seq, label, spec, rundir) in enumerate(plan, 1):
         done = rundir / ("summary.json" if spec.kind == "dynslam" else "peer.json")
         if spec.skip:
             status, wall = spec.skip, float("nan")
@@ -593,18 +595,17 @@ def run_benchmark(seqdirs: list[Path], specs: list[SystemSpec], out: Path, max_f
             status, wall = run_system(spec, seq, rundir, max_frames, timeout)
         print(f"[{k}/{len(plan)}] {label}" + (f" round {rnd}" if rounds > 1 else "") + f" / {spec.name}: {status}"
               + ("" if math.isnan(wall) else f" ({wall:.1f} s)"), flush=True)
-        raw.append((rnd, spec, seq, rundir, status, wall))
-    order = {spec.name: i for i, spec in enumerate(specs)}
-    raw.sort(key=lambda x: (labels.index(sequence_label(x[2])), x[0], order[x[1].name]))  # the table's order
-    per_run = [dict(collect(spec, seq, rundir, status, wall), round=rnd) for rnd, spec, seq, rundir, status, wall in raw]
+        raw.append((pos, rnd, spec, seq, rundir, status, wall))
+    raw.sort(key=lambda x: x[0])  # the table's order: sequence, round, system
+    per_run = [dict(collect(spec, seq, rundir, status, wall), round=rnd) for _, rnd, spec, seq, rundir, status, wall in raw]
     add_ratios(per_run, reference, [s.name for s in specs if s.kind == "peer"])
     rows = combine_rounds(per_run)
     failed = []
     if rounds > 1:
         write_csv(per_run, out / "peers_rounds.csv", ROUND_COLUMNS)
+        ran = {(r["sequence"], r["system"]) for r in per_run if r["status"] == "ok"}  # in some round
         failed = [f"- {r['sequence']} / {_label(per_run, r['system'])}, round {r['round']}: {r['status']}"
-                  for r in per_run if r["status"] != "ok" and any(
-                      q["status"] == "ok" for q in per_run if (q["sequence"], q["system"]) == (r["sequence"], r["system"]))]
+                  for r in per_run if r["status"] != "ok" and (r["sequence"], r["system"]) in ran]
     write_csv(rows, out / "peers.csv")
     md = table_markdown(rows, header, failed)
     (out / "peers.md").write_text(md)
