@@ -25,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -83,8 +85,32 @@ def main(argv: list[str] | None = None) -> int:
             cells = [f"{row['recall']:.2f} ({row['keypoints']:,}, {100 * row['miss_share']:.0f} %)" if row["keypoints"] else "-"
                      for row in rows]
             print(f"| `{name}` | {label} | " + " | ".join(cells) + " |")
+        print("\nthe misses by how much of their mover the frame found (keypoints; per frame and moving instance: no "
+              "keypoint judged dynamic / fewer than half / half or more), below and above 2 px a frame, and two of the crossings\n")
+        print("| scene | filter | misses | mover not found | found in part | mostly found | below 2 px a frame | 2 px or more "
+              "| not found, below 2 px | in part, 2 px or more |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        total = np.zeros(8, np.int64)
+        for name, label, rows in speed_rows:
+            slow = [r for r in rows if _bin_low(r["bin"]) < 2.0]
+            fast = [r for r in rows if _bin_low(r["bin"]) >= 2.0]
+            n_slow = sum(r["keypoints"] - r["dynamic"] for r in slow)
+            n_fast = sum(r["keypoints"] - r["dynamic"] for r in fast)
+            parts = [sum(r[k] for r in rows) for k in ("miss_unfound", "miss_in_part", "miss_mostly_found")]
+            vals = np.array([n_slow + n_fast, *parts, n_slow, n_fast, sum(r["miss_unfound"] for r in slow),
+                             sum(r["miss_in_part"] for r in fast)], np.int64)
+            total += vals
+            print(f"| `{name}` | {label} | " + " | ".join(f"{v:,}" for v in vals) + " |")
+        if len(speed_rows) > 1:
+            print("| all | | " + " | ".join(f"{v:,} ({100 * v / max(total[0], 1):.0f} %)" if i else f"{v:,}"
+                                            for i, v in enumerate(total)) + " |")
     print(f"\n{len(specs)} sequences in {time.time() - t0:.0f} s; runs in {out}")
     return 0
+
+
+def _bin_low(label: str) -> float:
+    """The lower edge (px a frame) of a bin label of ``recall_by_image_speed`` ("0.5-1", ">= 8")."""
+    return float(label.split("-")[0].lstrip(">= ").strip())
 
 
 if __name__ == "__main__":

@@ -45,7 +45,9 @@ how many were judged dynamic; :func:`recall_by_image_speed` bins them by ``f v d
 ``v`` of its reference point and mean depth ``z`` from the renderer's ``coverage.csv``): roughly how far the mover
 moved in the image since the previous frame (a motion along the line of sight moves it less; a walking person's
 limbs or a swinging door's free edge move more). An instance whose depth the renderer did not record in a frame
-counts as still there.
+counts as still there. Each bin's misses are also split by how much of their mover that frame found (none of its
+keypoints judged dynamic, fewer than half, half or more): a mover not found at all and the rest of a mover found in
+part call for different work (docs/robustness.md, "What the misses are made of").
 """
 
 from __future__ import annotations
@@ -299,14 +301,17 @@ def recall_by_image_speed(by_instance: dict, coverage: dict[str, np.ndarray], fx
     ``by_instance``: :attr:`KeypointScorer.by_instance`; ``coverage``: the sequence's ``coverage.csv``
     (:func:`~dynslam_lab.datasets.synthetic.read_coverage`; row ``k`` is frame ``k``); ``fx``: the focal length (px).
     Returns one dict per bin of ``edges`` (px a frame; the first from 0, the last open), in order: ``bin``,
-    ``keypoints``, ``dynamic`` (judged dynamic), ``recall`` (nan when empty) and ``miss_share`` (its share of all
-    misses). An instance or frame missing from ``coverage`` is a ValueError naming it.
+    ``keypoints``, ``dynamic`` (judged dynamic), ``recall`` (nan when empty), ``miss_share`` (its share of all
+    misses), and its misses split by how much of their mover the frame found: ``miss_unfound`` (no keypoint of the
+    instance judged dynamic in that frame), ``miss_in_part`` (some, fewer than half) and ``miss_mostly_found`` (half or
+    more). An instance or frame missing from ``coverage`` is a ValueError naming it.
     """
     ts = np.asarray(coverage["timestamp"], np.float64)
     dt = float(np.median(np.diff(ts))) if len(ts) > 1 else float("nan")
     bounds = [0.0, *map(float, edges), np.inf]
     n = np.zeros(len(bounds) - 1, np.int64)
     hit = np.zeros_like(n)
+    found = np.zeros((len(n), 3), np.int64)  # misses on instances found not at all / in part / mostly
     for (k, i), (count, judged) in by_instance.items():
         key = f"speed_{i}"
         if key not in coverage or not 0 <= k < len(ts):
@@ -316,10 +321,13 @@ def recall_by_image_speed(by_instance: dict, coverage: dict[str, np.ndarray], fx
         b = int(np.searchsorted(bounds, px, side="right")) - 1
         n[b] += count
         hit[b] += judged
+        found[b, 0 if judged == 0 else (1 if 2 * judged < count else 2)] += count - judged
     misses = max(int((n - hit).sum()), 1)
     rows = []
     for b in range(len(n)):
         label = f"{bounds[b]:g}-{bounds[b + 1]:g}" if np.isfinite(bounds[b + 1]) else f">= {bounds[b]:g}"
         rows.append({"bin": label, "keypoints": int(n[b]), "dynamic": int(hit[b]),
-                     "recall": hit[b] / n[b] if n[b] else float("nan"), "miss_share": (n[b] - hit[b]) / misses})
+                     "recall": hit[b] / n[b] if n[b] else float("nan"), "miss_share": (n[b] - hit[b]) / misses,
+                     "miss_unfound": int(found[b, 0]), "miss_in_part": int(found[b, 1]),
+                     "miss_mostly_found": int(found[b, 2])})
     return rows

@@ -24,10 +24,21 @@ def test_the_table_has_a_row_per_run_with_every_kind(tmp_path, capsys):
     assert "| FN no depth | P / R away from outlines |" in text
     assert re.search(r"^\| `boxes_xyz` \| none \|.* \| [\d,]+ \| nan / 0\.00 \|$", text, re.M)
     # the recall by image speed: one row per run, recall 0 in every bin that holds keypoints for `none`
-    speed = re.findall(r"^\| `boxes_xyz` \| (\w+) \| ((?:[^|]+\|){6})$", text.split("recall by the movers' image speed")[1], re.M)
+    speed_text, found_text = text.split("recall by the movers' image speed")[1].split("the misses by how much")
+    speed = re.findall(r"^\| `boxes_xyz` \| (\w+) \| ((?:[^|]+\|){6})$", speed_text, re.M)
     assert {label for label, _ in speed} == {"geometry", "none"}
     none_cells = [c.strip() for c in dict(speed)["none"].split("|") if c.strip()]
     assert any(c != "-" for c in none_cells) and all(c == "-" or c.startswith("0.00 (") for c in none_cells)
+    # the misses by how much of their mover was found: `none` finds no mover in any frame, so every miss is on a mover
+    # not found; on every row the three kinds, and the slow and fast ones, add up to the misses
+    found = {label: [int(v.replace(",", "")) for v in cells.split("|") if v.strip()]
+             for label, cells in re.findall(r"^\| `boxes_xyz` \| (\w+) \| ((?:[^|]+\|){8})$", found_text, re.M)}
+    assert set(found) == {"geometry", "none"}
+    misses, unfound, part, mostly, slow, fast, unfound_slow, part_fast = found["none"]
+    assert misses > 0 and (unfound, part, mostly) == (misses, 0, 0) and (unfound_slow, part_fast) == (slow, 0)
+    for row in found.values():
+        assert row[1] + row[2] + row[3] == row[0] == row[4] + row[5]
+        assert row[6] <= min(row[1], row[4]) and row[7] <= min(row[2], row[5])
     assert (tmp_path / "runs" / "boxes_xyz_geometry" / "trajectory.txt").is_file()
 
 

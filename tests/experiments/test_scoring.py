@@ -110,6 +110,12 @@ def test_recall_by_image_speed_bins_each_instance_by_f_v_dt_over_z():
     assert got == {"0-0.5": (4, 0), "0.5-1": (10, 2), "4-8": (20, 18)}
     assert rows[1]["recall"] == 0.2 and np.isnan(rows[2]["recall"])
     assert rows[1]["miss_share"] == 8 / 14 and rows[0]["miss_share"] == 4 / 14
+    # the misses by how much of their mover the frame found: instance 2 not at all (4), instance 1 in frame 1 in
+    # part (2 of 10: 8 missed), in frame 2 mostly (18 of 20: 2 missed)
+    split = {r["bin"]: (r["miss_unfound"], r["miss_in_part"], r["miss_mostly_found"]) for r in rows if r["keypoints"]}
+    assert split == {"0-0.5": (4, 0, 0), "0.5-1": (0, 8, 0), "4-8": (0, 0, 2)}
+    half = recall_by_image_speed({(1, 1): [10, 5], (2, 1): [9, 4]}, coverage, fx=525.0)  # exactly half is mostly found
+    assert [(r["miss_in_part"], r["miss_mostly_found"]) for r in half if r["keypoints"]] == [(0, 5), (5, 0)]
     import pytest
 
     with pytest.raises(ValueError, match="speed_3"):
