@@ -14,8 +14,11 @@ keypoint precision / recall, the false positives by kind (``FP_KINDS``), the sta
 the misses (false negatives) on the movers' silhouettes and inside them (``FN_KINDS``), the misses without a depth
 reading, and the precision / recall of the keypoints farther than ``OUTLINE_BAND_PX`` (4 px) from every moving
 outline (``KeypointScorer.away_from_outlines``). A second table gives, where the sequence has the renderer's
-``coverage.csv``, the recall by the movers' image speed (``recall_by_image_speed``: px a frame, roughly).
-docs/robustness.md ("Where the false positives are", "Where the misses are") reads such tables.
+``coverage.csv``, the recall by the movers' image speed (``recall_by_image_speed``: px a frame, roughly), and a
+third the misses by how much of their mover the frame found (none, fewer than half, half or more of its keypoints
+judged dynamic), below and above 2 px a frame, with a line of totals over the scenes.
+docs/robustness.md ("Where the false positives are", "Where the misses are", "What the misses are made of") reads
+such tables.
 """
 
 from __future__ import annotations
