@@ -312,16 +312,40 @@ class DenseTerm:
         (R R_p^T, t - R R_p^T t_p)``, ``e = (Log(R R_p^T) / s_r, (t - q) / s_t)``, ``q = R R_p^T t_p``; to
         first order ``de/d omega = (I / s_r, [q]_x / s_t)`` and ``de/d tau = (0, I / s_t)``. It fixes the
         directions the planes leave free (a slide along a wall) when few features are matched."""
-        s_t, s_r = self.prior_sigma[0], np.radians(self.prior_sigma[1])
-        R_p, t_p = self.T_prior[:3, :3], self.T_prior[:3, 3]
-        dR = R @ R_p.T
-        q = dR @ t_p
-        e = np.concatenate([so3_log(dR) / s_r, (t - q) / s_t])
-        J = np.zeros((6, 6))
-        J[:3, :3] = np.eye(3) / s_r
-        J[3:, :3] = skew(q) / s_t
-        J[3:, 3:] = np.eye(3) / s_t
-        return e, J
+        return pose_prior_residuals(R, t, self.T_prior, self.prior_sigma)
+
+
+def pose_prior_residuals(R: np.ndarray, t: np.ndarray, T_prior: np.ndarray, prior_sigma: tuple[float, float]
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Six whitened residuals holding ``T_c_w = (R, t)`` to ``T_prior`` with sigmas ``prior_sigma = (m, deg)``, and
+    their Jacobian ``(6, 6)`` in the step ``(omega, tau)`` (:meth:`DenseTerm.prior_residuals` gives the formulas)."""
+    s_t, s_r = prior_sigma[0], np.radians(prior_sigma[1])
+    R_p, t_p = T_prior[:3, :3], T_prior[:3, 3]
+    dR = R @ R_p.T
+    q = dR @ t_p
+    e = np.concatenate([so3_log(dR) / s_r, (t - q) / s_t])
+    J = np.zeros((6, 6))
+    J[:3, :3] = np.eye(3) / s_r
+    J[3:, :3] = skew(q) / s_t
+    J[3:, 3:] = np.eye(3) / s_t
+    return e, J
+
+
+@dataclass
+class MotionPrior:
+    """A Gaussian prior on a pose alone (ours): the term a motion-only BA takes as ``dense`` when there is no depth
+    term, holding ``T_c_w`` to ``T_prior`` (the motion model's prediction) with sigmas ``prior_sigma = (m, deg)``.
+    Where the features fix the pose, hundreds of them outweigh it; where they leave a direction free (points on one
+    far plane: a sideways step and a small rotation look alike), it decides."""
+
+    T_prior: np.ndarray
+    prior_sigma: tuple[float, float]
+
+    def residuals(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Whitened residuals ``e (6,)``, their Jacobian ``(6, 6)`` and no unassociated points (an empty gate):
+        the interface of :meth:`DenseTerm.residuals`."""
+        e, J = pose_prior_residuals(R, t, self.T_prior, self.prior_sigma)
+        return e, J, np.zeros(0)
 
 
 @dataclass

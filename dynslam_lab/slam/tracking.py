@@ -92,7 +92,7 @@ from ..datasets.kinect import DepthNoise, nguyen_sigma
 from ..features.matching import TH_HIGH, TH_LOW, Matches, match_descriptors, orientation_consistent, search_by_projection
 from ..geometry.pnp import pnp_ransac
 from ..geometry.se3 import nearest_rotation, rotation_angle_deg, se3_inv, so3_exp, so3_log, transform_points
-from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, HybridTerm, ImageLevel, align_depth, fuse_depth_model,
+from ..geometry.depth_alignment import (DenseTerm, DepthGrid, DepthSource, HybridTerm, ImageLevel, MotionPrior, align_depth, fuse_depth_model,
                                         image_level, photometric_term, smooth_depth, vertex_normal_grid)
 from .frame import KeyFrame, SlamFrame
 from .keyframe_database import static_bow
@@ -171,6 +171,8 @@ class TrackingConfig:
     static_scene_max_dynamic: float = 0.02  # fraction of a frame's keypoints judged dynamic above which the frame counts as dynamic (static_scene_frames); ours
     dense_below_inliers: int = 100  # "weak": the inlier count below which a frame is tracked again with the dense term; ours
     dense_mask_radius: float = 24.0  # px: depth samples this close to a keypoint judged dynamic are left out of the dense term (the screening judges keypoints, not pixels); ours
+    motion_prior_m: float = 0.0  # > 0: the motion-only BA without a depth term holds the pose to the motion model's prediction with this sigma (m) on the position ... (depth_alignment.MotionPrior); 0 = off (ORB-SLAM2); ours
+    motion_prior_deg: float = 1.0  # ... and this one (deg) on the orientation
     dense_mask_region: bool = True  # depth samples inside the screened dynamic region (the oracle's masks, the region stage's region) are left out of the dense term too; ours
     dense_in_dynamic_scenes: bool = False  # the dense term ("weak", "auto") engages on scenes judged dynamic too (static_scene_frames then governs the far points only); ours
     dense_stride: int = 8  # px between the depth samples of the dense term (80 x 60 for 640 x 480); ours
@@ -261,6 +263,9 @@ class TrackingConfig:
                      "dense_mask_region", "dense_in_dynamic_scenes"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackingConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if self.motion_prior_m < 0 or not self.motion_prior_deg > 0:
+            raise ValueError(f"TrackingConfig: motion_prior_m must be >= 0 and motion_prior_deg > 0, got "
+                             f"{self.motion_prior_m}, {self.motion_prior_deg}")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -384,8 +389,11 @@ class Tracker:
         if len(idx) < 3 and self._dense is None:
             frame.T_w_c = se3_inv(T_c_w)
             return 0
+        term = self._dense
+        if term is None and self.cfg.motion_prior_m > 0 and self.predicted_T_c_w is not None:
+            term = MotionPrior(self.predicted_T_c_w, (self.cfg.motion_prior_m, self.cfg.motion_prior_deg))
         T, out = optimize_pose(T_c_w, self.map.xyz[frame.map_point_ids[idx]], self._obs(frame, idx), self.camera, self.cfg.bf,
-                               dense=self._dense)
+                               dense=term)
         frame.T_w_c = se3_inv(T)
         frame.outlier[idx[out]] = True
         return int((~out).sum())
