@@ -383,7 +383,8 @@ class Tracker:
         return Observations.from_keypoints(frame.uv[idx], z, frame.octave[idx], self.cfg.bf, self.scale_factor, z_sigma)
 
     def _optimize(self, frame: SlamFrame, T_c_w: np.ndarray) -> int:
-        """Motion-only BA over the frame's matches; marks outliers; returns inlier count."""
+        """Motion-only BA over the frame's matches (with the dense term when one is set, else with the motion prior
+        when ``motion_prior_m`` > 0 and there is a prediction); marks outliers; returns inlier count."""
         idx = np.flatnonzero(frame.map_point_ids >= 0)
         frame.outlier[:] = False
         if len(idx) < 3 and self._dense is None:

@@ -71,7 +71,7 @@ def test_where_the_features_fix_the_pose_a_wrong_prediction_moves_it_by_less_tha
     X_w = transform_points(se3_inv(T_true), X)
     noisy = uv + rng.normal(0.0, 1.0, uv.shape)
     obs = Observations(noisy, noisy[:, 0] - BF / z, np.ones(n))
-    wrong = make_pose(so3_exp(np.array([0.0, 0.035, 0.0])), np.array([0.08, -0.02, 0.05])) @ np.eye(4)
+    wrong = make_pose(so3_exp(np.array([0.0, 0.035, 0.0])), np.array([0.08, -0.02, 0.05]))
     T_alone, _ = optimize_pose(T_true, X_w, obs, CAM, BF)
     T_prior, _ = optimize_pose(T_true, X_w, obs, CAM, BF, dense=MotionPrior(wrong, (0.02, 1.0)))
     assert np.linalg.norm(se3_inv(T_alone)[:3, 3] - se3_inv(T_prior)[:3, 3]) < 1e-3
