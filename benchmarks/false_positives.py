@@ -95,8 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---|---|---|---|---|---|---|---|---|")
         total = np.zeros(8, np.int64)
         for name, label, rows in speed_rows:
-            slow = [r for r in rows if _bin_low(r["bin"]) < 2.0]
-            fast = [r for r in rows if _bin_low(r["bin"]) >= 2.0]
+            lows = (0.0, *IMAGE_SPEED_EDGES_PX)  # each row's lower edge (px a frame), in the rows' order
+            slow = [r for r, low in zip(rows, lows) if low < 2.0]
+            fast = [r for r, low in zip(rows, lows) if low >= 2.0]
             n_slow = sum(r["keypoints"] - r["dynamic"] for r in slow)
             n_fast = sum(r["keypoints"] - r["dynamic"] for r in fast)
             parts = [sum(r[k] for r in rows) for k in ("miss_unfound", "miss_in_part", "miss_mostly_found")]
@@ -109,11 +110,6 @@ def main(argv: list[str] | None = None) -> int:
                                             for i, v in enumerate(total)) + " |")
     print(f"\n{len(specs)} sequences in {time.time() - t0:.0f} s; runs in {out}")
     return 0
-
-
-def _bin_low(label: str) -> float:
-    """The lower edge (px a frame) of a bin label of ``recall_by_image_speed`` ("0.5-1", ">= 8")."""
-    return float(label.split("-")[0].lstrip(">= ").strip())
 
 
 if __name__ == "__main__":
